@@ -1,0 +1,15 @@
+"""cathsim-dmc: endovascular guidewire navigation on MuJoCo and dm_control.
+
+Importing the package selects a headless OpenGL backend when there is no display and
+registers a Gymnasium id ``cathsim_dmc/{task}-{aorta}-v0`` for every suite task.
+"""
+
+from cathsim_dmc import _gl
+
+_gl.select_backend()
+
+__version__ = "0.1.0"
+
+from cathsim_dmc import gym as _gym  # noqa: E402  (registers the Gymnasium ids)
+
+_gym.register_all()
