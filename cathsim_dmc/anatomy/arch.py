@@ -1,0 +1,466 @@
+"""Parametric aortic arch: centerlines and lumen-radius profiles.
+
+Frame and units: SI metres, patient frame (+y superior, +x patient left, +z
+anterior). The arch lies roughly in the frontal (x-y) plane so that the AP
+(`top`) camera, looking along -z, sees it unfolded. The descending aorta is at
+x > 0 and its inferior end is open (femoral access, wire travels +y); the
+ascending aorta is at x < 0 and ends closed a few centimetres below the arch.
+
+The model is purely geometric: `build_arch(params)` returns an `ArchModel`
+holding one `Vessel` (dense centerline + radius per point) for the aorta and one
+per branch, plus the landmarks (ostia, sites, entry) that the asset needs.
+`mesh.py` turns the vessels into a lumen surface.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Dict, Tuple
+
+import numpy as np
+from scipy import interpolate
+
+BRANCHES = ("bca", "lcca", "lsa")  # proximal (ascending side) to distal
+
+
+@dataclasses.dataclass(frozen=True)
+class ArchParams:
+    """Generator parameters. Lengths in metres, angles in degrees.
+
+    The defaults describe a normal adult type I arch. Every anatomical default is
+    inside the published range it cites; values without a population source are
+    marked as modelling choices.
+    """
+
+    name: str = "type1"
+    # Arch type label (I/II/III). Geometrically the type is set by
+    # `bca_origin_drop_m`; this label is for humans and is checked against the
+    # measured drop by the build (see `ArchModel.arch_type_measured`).
+    arch_type: str = "I"
+    # Seed for every random choice (currently only the tortuosity phases).
+    seed: int = 0
+
+    # Aortic lumen diameters, Hager et al. 2002, "Diameters of the thoracic
+    # aorta throughout life as measured with helical CT", Z Kardiol 91:674
+    # (mean adult values): ascending aorta, proximal arch (at the BCA), distal
+    # arch (between LCCA and LSA), isthmus (distal to the LSA), descending aorta.
+    ascending_diameter_m: float = 0.0309
+    proximal_arch_diameter_m: float = 0.0277
+    distal_arch_diameter_m: float = 0.0261
+    isthmus_diameter_m: float = 0.0247
+    descending_diameter_m: float = 0.0243
+
+    # Arch shape: half-ellipse between the ascending and descending centerlines.
+    # Width = centreline distance ascending-descending, height = apex above the
+    # ends of the arch. 60 mm / 36 mm (H/W = 0.6) is a representative normal
+    # adult arch: the arch height/width ratio of normal controls is about 0.6
+    # (Ou et al. 2004, Eur Heart J 25:1853, who use H/W to grade arch shape).
+    # Modelling choice, not a fitted population mean.
+    arch_width_m: float = 0.060
+    arch_height_m: float = 0.036
+    # Antero-posterior offset between ascending (anterior, +z) and descending
+    # (posterior, -z) ends. Real arches run obliquely (~45 deg); it is kept small
+    # so the AP view shows the arch unfolded (modelling choice).
+    arch_depth_m: float = 0.010
+
+    # Path lengths. Descending aorta from the entry point up to the start of the
+    # arch: 10-12 cm of thoracic descending aorta in view (design brief).
+    descending_length_m: float = 0.110
+    # Entry point distance inside the open inferior end.
+    entry_inset_m: float = 0.010
+    # Ascending aorta below the arch down to its closed root end (no heart).
+    ascending_length_m: float = 0.040
+
+    # Branch origin lumen diameters (CTA of supra-aortic trunks; normal adult
+    # means: BCA 12.5 mm, LCCA 8.3 mm, LSA 10.4 mm, design brief / DESIGN.md).
+    bca_diameter_m: float = 0.0125
+    lcca_diameter_m: float = 0.0083
+    lsa_diameter_m: float = 0.0104
+    # Distal/origin diameter ratio over the modelled branch length (gentle
+    # taper; modelling choice).
+    branch_taper: float = 0.9
+    # Wall-to-wall gaps between neighbouring ostia along the outer curvature
+    # (about 4 mm BCA-LCCA and 6 mm LCCA-LSA in CTA series, design brief).
+    bca_lcca_gap_m: float = 0.004
+    lcca_lsa_gap_m: float = 0.006
+    # Vertical distance from the top of the outer curvature down to the BCA
+    # ostium centre. Arch type (Madhwal et al. 2008, Catheter Cardiovasc Interv
+    # 72:38): type I < 1 CCA diameter, type II 1-2, type III > 2 diameters.
+    # 3 mm = 0.36 LCCA diameters: type I, with the LCCA near the apex.
+    bca_origin_drop_m: float = 0.003
+    # Final branch headings in the frontal plane, degrees from +y towards
+    # patient left (+x): BCA runs up and to the right, LCCA nearly vertical,
+    # LSA up and to the left (modelling choice, typical AP angiogram).
+    bca_angle_deg: float = -20.0
+    lcca_angle_deg: float = 5.0
+    lsa_angle_deg: float = 30.0
+    # Length over which a branch turns from the arch normal to its heading.
+    branch_bend_length_m: float = 0.020
+    # Branch length from its ostium to its closed end. The BCA trunk is 4-5 cm
+    # (design brief); each branch must hold a site 3 cm in plus ~1.5 cm.
+    bca_length_m: float = 0.045
+    lcca_length_m: float = 0.045
+    lsa_length_m: float = 0.045
+    # Depth of the target sites into each branch, from the ostium.
+    site_depth_m: float = 0.030
+
+    # Variants (off for type I).
+    # Tortuosity: lateral sinusoidal displacement of the descending aorta with
+    # a seeded random phase; tapered to zero at both ends of the segment.
+    tortuosity_amplitude_m: float = 0.0
+    tortuosity_wavelength_m: float = 0.060
+    # Aneurysm: Gaussian bulge of the aortic diameter up to this diameter
+    # (0 = none), centred at `aneurysm_position` (0 = start of the arch on the
+    # descending side, 1 = its end on the ascending side), with this 1-sigma
+    # half-length along the centreline.
+    aneurysm_diameter_m: float = 0.0
+    aneurysm_position: float = 0.5
+    aneurysm_length_m: float = 0.015
+
+    # Lumen surface and wall.
+    # Smooth-union blend width k at the junctions (quadratic smooth-min; where
+    # there is room it rounds a corner with a radius of about 0.85 k). 4 mm made
+    # ostia continuous without lips in the wall prototype (DESIGN.md).
+    blend_radius_m: float = 0.004
+    # Wall (collision prism) thickness (DESIGN.md, Known hard parts).
+    wall_thickness_m: float = 0.002
+    # Maximum edge length passed to the mesher: ~3 mm edges on the aorta, the
+    # resolution whose wall had no holes and compiled in < 1 s in the
+    # prototype (DESIGN.md); refined below where the lumen is narrow.
+    edge_length_m: float = 0.004
+    # Local refinement: triangles next to edges folded by more than this
+    # (narrow branches, the carinas between ostia) are split, up to
+    # `refine_levels` times, then the mesh is relaxed on the surface, so that the
+    # wall prisms follow the curvature (modelling choice, see mesh.py). One
+    # level takes the worst fold from ~65 to ~33 deg for +3% triangles.
+    max_dihedral_deg: float = 25.0
+    refine_levels: int = 1
+    relax_iterations: int = 10
+    # Spacing of the sampled SDF grid the surface is extracted from.
+    sdf_spacing_m: float = 0.001
+
+    def replace(self, **changes) -> "ArchParams":
+        return dataclasses.replace(self, **changes)
+
+    def branch_diameter_m(self, branch: str) -> float:
+        return getattr(self, f"{branch}_diameter_m")
+
+    def branch_length_m(self, branch: str) -> float:
+        return getattr(self, f"{branch}_length_m")
+
+    def branch_angle_deg(self, branch: str) -> float:
+        return getattr(self, f"{branch}_angle_deg")
+
+    def validate(self) -> None:
+        positive = [f.name for f in dataclasses.fields(self)
+                    if f.name.endswith("_m") and f.name not in (
+                        "tortuosity_amplitude_m", "aneurysm_diameter_m")]
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ArchParams.{name} must be > 0, got {getattr(self, name)!r}.")
+        if self.site_depth_m >= min(self.branch_length_m(b) for b in BRANCHES):
+            raise ValueError("ArchParams.site_depth_m must be shorter than every branch length.")
+        narrowest = min(self.branch_diameter_m(b) for b in BRANCHES)
+        if self.edge_length_m > 0.75 * narrowest:
+            raise ValueError(f"ArchParams.edge_length_m={self.edge_length_m} is too coarse for a "
+                             f"{narrowest * 1e3:.1f} mm branch; use at most {0.75 * narrowest:.4f}.")
+        if self.refine_levels < 0 or self.relax_iterations < 0:
+            raise ValueError("ArchParams.refine_levels and relax_iterations must be >= 0.")
+        if self.arch_type not in ("I", "II", "III"):
+            raise ValueError(f"ArchParams.arch_type must be one of I, II, III, got {self.arch_type!r}.")
+
+
+# Shipped presets: name -> parameters. Only type I is built for now.
+PRESETS: Dict[str, ArchParams] = {
+    "type1": ArchParams(),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Vessel:
+    """A tube: dense centreline (N, 3) with a lumen radius per point."""
+
+    name: str
+    points: np.ndarray
+    radius: np.ndarray
+
+    @property
+    def arclength(self) -> np.ndarray:
+        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        return np.concatenate([[0.0], np.cumsum(seg)])
+
+
+@dataclasses.dataclass(frozen=True)
+class ArchModel:
+    """Centrelines, radii and landmarks of one generated arch."""
+
+    params: ArchParams
+    aorta: Vessel            # from below the open inferior end up, over the arch, to the root
+    branches: Dict[str, Vessel]  # each from its origin on the aortic centreline to its closed end
+    aorta_open_s: float      # arclength on `aorta` of the open inferior end (cut plane)
+    branch_origin_s: Dict[str, float]   # arclength on `aorta` where each branch centreline starts
+    ostia: Dict[str, np.ndarray]        # ostium centres (branch centreline meets nominal aortic wall)
+    sites: Dict[str, np.ndarray]
+    entry_position: np.ndarray
+    entry_direction: np.ndarray
+    open_end_center: np.ndarray
+    open_end_radius: float
+    arch_top_y: float        # top of the outer curvature (nominal tube surface)
+
+    @property
+    def vessels(self) -> Tuple[Vessel, ...]:
+        return (self.aorta,) + tuple(self.branches[b] for b in BRANCHES)
+
+    @property
+    def cca_diameter_m(self) -> float:
+        return self.params.lcca_diameter_m
+
+    @property
+    def arch_type_distance_m(self) -> float:
+        """Vertical distance from the top of the outer curvature to the BCA ostium centre."""
+        return float(self.arch_top_y - self.ostia["bca"][1])
+
+    @property
+    def arch_type_measured(self) -> str:
+        ratio = self.arch_type_distance_m / self.cca_diameter_m
+        return "I" if ratio < 1.0 else ("II" if ratio <= 2.0 else "III")
+
+
+# ----------------------------------------------------------------------------
+# Geometry helpers
+
+
+def _resample(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Resample a polyline at (nearly) uniform arclength spacing, ends kept."""
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(2, int(math.ceil(s[-1] / spacing)) + 1)
+    t = np.linspace(0.0, s[-1], n)
+    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+class _ArchCurve:
+    """Half-ellipse arch: theta = 0 at the descending end, pi at the ascending end."""
+
+    def __init__(self, p: ArchParams):
+        self.a = p.arch_width_m / 2.0
+        self.b = p.arch_height_m
+        self.hd = p.arch_depth_m / 2.0
+
+    def point(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        return np.stack([self.a * np.cos(theta), self.b * np.sin(theta),
+                         -self.hd * np.cos(theta)], axis=-1)
+
+    def tangent(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        return _unit(np.stack([-self.a * np.sin(theta), self.b * np.cos(theta),
+                               self.hd * np.sin(theta)], axis=-1))
+
+    def normal(self, theta):
+        """Outward normal (away from the curvature centre), orthogonal to the tangent."""
+        theta = np.asarray(theta, dtype=float)
+        n = np.stack([np.cos(theta) / self.a, np.sin(theta) / self.b,
+                      np.zeros_like(theta)], axis=-1)
+        t = self.tangent(theta)
+        n = n - np.sum(n * t, axis=-1, keepdims=True) * t
+        return _unit(n)
+
+
+def _bisect(f, lo, hi, iters=80):
+    flo = f(lo)
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        fm = f(mid)
+        if (fm > 0) == (flo > 0):
+            lo, flo = mid, fm
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+# ----------------------------------------------------------------------------
+# Model construction
+
+
+_SAMPLE_M = 0.0005       # centreline sample spacing of the model
+_CUT_MARGIN_M = 0.012    # the aorta tube continues this far below the open end (trimmed away)
+
+
+def build_arch(params: ArchParams) -> ArchModel:
+    """Build centrelines, radius profiles and landmarks from `params`."""
+    p = params
+    p.validate()
+    arch = _ArchCurve(p)
+    r_branch = {b: p.branch_diameter_m(b) / 2.0 for b in BRANCHES}
+
+    # --- aortic centreline: from below the open end up the descending aorta,
+    # over the arch, down the ascending aorta to the root. Arclength s = 0 is
+    # the lower end of the part that is trimmed away by the open-end cut.
+    y_open = -(p.descending_length_m + p.entry_inset_m)
+    desc = np.stack([np.full(2, arch.a), [y_open - _CUT_MARGIN_M, 0.0], np.full(2, -arch.hd)], axis=1)
+    desc = _resample(desc, _SAMPLE_M)
+    th_dense = np.linspace(0.0, math.pi, 6001)
+    asc = np.stack([np.full(2, -arch.a), [0.0, -p.ascending_length_m], np.full(2, arch.hd)], axis=1)
+    raw = np.concatenate([desc, arch.point(th_dense)[1:], _resample(asc, _SAMPLE_M)[1:]])
+    s_raw = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(raw, axis=0), axis=1))])
+    s_theta = s_raw[len(desc) - 1:len(desc) - 1 + len(th_dense)]
+    s_of_theta = lambda t: float(np.interp(t, th_dense, s_theta))
+    points = _resample(raw, _SAMPLE_M)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s_open = _CUT_MARGIN_M
+    s_arch0, s_arch1 = s_of_theta(0.0), s_of_theta(math.pi)
+
+    def place_branches(r_of_theta):
+        """Origin angles on the arch: BCA from the drop, then LCCA/LSA from the gaps."""
+        th = np.linspace(0.0, math.pi, 4001)
+        tan = arch.tangent(th)
+        outer_y = arch.point(th)[:, 1] + r_of_theta(th) * np.sqrt(np.clip(1 - tan[:, 1] ** 2, 0, 1))
+        top_y, theta_top = float(outer_y.max()), float(th[np.argmax(outer_y)])
+        ostium = lambda t: arch.point(t) + r_of_theta(t) * arch.normal(t)
+        drop = lambda t: top_y - ostium(t)[1] - p.bca_origin_drop_m
+        if drop(math.pi * 0.98) < 0:
+            raise ValueError("ArchParams.bca_origin_drop_m is larger than the arch allows.")
+        theta = {"bca": _bisect(drop, theta_top, math.pi * 0.98)}
+        for prev, nxt, gap in (("bca", "lcca", p.bca_lcca_gap_m), ("lcca", "lsa", p.lcca_lsa_gap_m)):
+            want = r_branch[prev] + gap + r_branch[nxt]
+            o_prev = ostium(theta[prev])
+            f = lambda t: np.linalg.norm(ostium(t) - o_prev) - want
+            if f(0.05) < 0:
+                raise ValueError(f"No room on the arch for the {nxt.upper()} with the given gaps.")
+            theta[nxt] = _bisect(f, 0.05, theta[prev])
+        return theta
+
+    def radius_profile(theta):
+        """Monotone cubic through the Hager levels (+ optional aneurysm bulge)."""
+        s_br = {b: s_of_theta(theta[b]) for b in BRANCHES}
+        knots = [
+            (s_br["lsa"] - r_branch["lsa"] - 0.045, p.descending_diameter_m / 2),
+            (s_br["lsa"] - r_branch["lsa"] - 0.008, p.isthmus_diameter_m / 2),
+            (0.5 * (s_br["lsa"] + s_br["lcca"]), p.distal_arch_diameter_m / 2),
+            (s_br["bca"], p.proximal_arch_diameter_m / 2),
+            (s_arch1 + 0.010, p.ascending_diameter_m / 2),
+        ]
+        ks, kr = map(np.array, zip(*knots))
+        if np.any(np.diff(ks) <= 0):
+            raise ValueError("Aortic radius knots are out of order; the branches are too far apart for the arch.")
+        r = interpolate.PchipInterpolator(ks, kr)(np.clip(s, ks[0], ks[-1]))
+        if p.aneurysm_diameter_m > 0:
+            s_c = s_arch0 + p.aneurysm_position * (s_arch1 - s_arch0)
+            bump = np.exp(-0.5 * ((s - s_c) / p.aneurysm_length_m) ** 2)
+            r = r + np.clip(p.aneurysm_diameter_m / 2 - r, 0, None) * bump
+        return r
+
+    # The ostia sit on the aortic wall, whose radius depends on where they are:
+    # start from the Hager arch radii, then iterate (converges in 2-3 rounds).
+    r_of_theta = lambda t: np.interp(t, [0.0, math.pi / 2, math.pi],
+                                     [p.isthmus_diameter_m / 2, p.distal_arch_diameter_m / 2,
+                                      p.proximal_arch_diameter_m / 2])
+    for _ in range(4):
+        theta = place_branches(r_of_theta)
+        radius = radius_profile(theta)
+        r_of_theta = lambda t, r=radius: np.interp(np.vectorize(s_of_theta)(t), s, r)
+    s_br = {b: s_of_theta(theta[b]) for b in BRANCHES}
+
+    # Tortuosity of the descending aorta (lateral, in the frontal plane). The
+    # arclength is recomputed afterwards and landmarks are carried over by index.
+    if p.tortuosity_amplitude_m > 0:
+        rng = np.random.default_rng(p.seed)
+        phase = rng.uniform(0.0, 2 * math.pi)
+        seg_lo, seg_hi = s_open + 0.02, s_arch0 - 0.02
+        u = (s - seg_lo) / max(seg_hi - seg_lo, 1e-9)
+        window = np.sin(math.pi * np.clip(u, 0, 1)) ** 2
+        points = points.copy()
+        points[:, 0] += p.tortuosity_amplitude_m * window * np.sin(
+            2 * math.pi * (s - seg_lo) / p.tortuosity_wavelength_m + phase)
+        s_new = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        s_br = {b: float(np.interp(v, s, s_new)) for b, v in s_br.items()}
+        s = s_new
+    aorta = Vessel("aorta", points, radius)
+
+    def aorta_at(s_query):
+        P = np.array([np.interp(s_query, s, points[:, k]) for k in range(3)])
+        return P, float(np.interp(s_query, s, radius))
+
+    # --- branches: straight out along the arch normal through the aortic wall,
+    # then turning to their heading over `branch_bend_length_m`.
+    branches, ostia, sites = {}, {}, {}
+    for b in BRANCHES:
+        A, R_a = aorta_at(s_br[b])
+        n0 = arch.normal(theta[b])
+        ang = math.radians(p.branch_angle_deg(b))
+        d1 = np.array([math.sin(ang), math.cos(ang), 0.0])
+        total = R_a + p.branch_length_m(b)
+        u = np.arange(0.0, total + 1e-12, _SAMPLE_M / 2)
+        w = _smoothstep((u - R_a) / p.branch_bend_length_m)[:, None]
+        dirs = _unit((1 - w) * n0 + w * d1)
+        steps = np.diff(u)[:, None] * 0.5 * (dirs[1:] + dirs[:-1])
+        bpts = A + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+        bpts = _resample(bpts, _SAMPLE_M)
+        ub = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(bpts, axis=0), axis=1))])
+        taper = np.clip((ub - R_a) / p.branch_length_m(b), 0, 1)
+        branches[b] = Vessel(b, bpts, r_branch[b] * (1 - (1 - p.branch_taper) * taper))
+        ostia[b] = A + R_a * n0
+        sites[b] = np.array([np.interp(R_a + p.site_depth_m, ub, bpts[:, k]) for k in range(3)])
+
+    # Top of the outer curvature of the final tube (highest point of its wall).
+    tan_all = _unit(np.gradient(points, s, axis=0))
+    top_y = float(np.max(points[:, 1] + radius * np.sqrt(np.clip(1 - tan_all[:, 1] ** 2, 0, 1))))
+
+    open_c, r_open = aorta_at(s_open)
+    entry, _ = aorta_at(s_open + p.entry_inset_m)
+    return ArchModel(
+        params=p, aorta=aorta, branches=branches, aorta_open_s=s_open,
+        branch_origin_s=s_br, ostia=ostia, sites=sites,
+        entry_position=entry, entry_direction=np.array([0.0, 1.0, 0.0]),
+        open_end_center=open_c, open_end_radius=r_open, arch_top_y=top_y)
+
+
+def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,
+                 fillet_m: float = 0.010) -> np.ndarray:
+    """Polyline from the entry along the aorta and into `branch`, ending at its site.
+
+    The corner where the branch centreline leaves the aortic centreline is
+    replaced by a cubic Bezier (tangent-continuous) that starts `fillet_m` before
+    the origin on the aorta and ends in the branch just past its ostium, so the
+    path is smooth and stays deep inside the lumen.
+    """
+    p = model.params
+    s = model.aorta.arclength
+    s_entry = model.aorta_open_s + p.entry_inset_m
+    s_origin = model.branch_origin_s[branch]
+    s_fillet = s_origin - fillet_m
+    keep = (s >= s_entry) & (s <= s_fillet)
+    at = lambda sq: np.array([np.interp(sq, s, model.aorta.points[:, k]) for k in range(3)])
+    head = np.concatenate([[at(s_entry)], model.aorta.points[keep], [at(s_fillet)]])
+    tangent_a = _unit(at(s_fillet + 1e-4) - at(s_fillet - 1e-4))
+
+    br = model.branches[branch]
+    ub = br.arclength
+    R_a = float(np.interp(s_origin, s, model.aorta.radius))
+    u_join = R_a + 0.25 * p.site_depth_m   # a little past the ostium, in the branch
+    u_site = R_a + p.site_depth_m
+    bat = lambda uq: np.array([np.interp(uq, ub, br.points[:, k]) for k in range(3)])
+    tangent_b = _unit(bat(u_join + 1e-4) - bat(u_join - 1e-4))
+    P0, P3 = at(s_fillet), bat(u_join)
+    h = 0.5 * np.linalg.norm(P3 - P0)
+    P1, P2 = P0 + h * tangent_a, P3 - h * tangent_b
+    t = np.linspace(0, 1, 200)[:, None]
+    bez = ((1 - t) ** 3) * P0 + 3 * ((1 - t) ** 2) * t * P1 + 3 * (1 - t) * t * t * P2 + t ** 3 * P3
+    keep_b = (ub > u_join) & (ub < u_site)
+    tail = np.concatenate([br.points[keep_b], [bat(u_site)]])
+    path = np.concatenate([head, bez[1:], tail])
+    # Drop duplicate points before resampling.
+    d = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    path = np.concatenate([path[:1], path[1:][d > 1e-9]])
+    return _resample(path, spacing)

@@ -1,0 +1,381 @@
+"""Aorta asset folders: write, read and validate; build one from `ArchParams`.
+
+An asset folder (format_version 1) holds:
+
+- ``meta.json``: name, units, description, sites, entry (position + unit
+  insertion direction), centerlines (entry -> site polylines with the lumen
+  radius at each point), wall thickness, bounds of the visual mesh, arch-type
+  distance and CCA diameter measured on the geometry, and the generator
+  parameters (so the build is reproducible). Extra keys: ``open_end`` (the
+  plane disc where the wire enters; the visual mesh is closed there but no
+  collision piece covers it) and ``counts``.
+- ``visual.stl``: binary STL of the closed lumen surface, metres, outward normals.
+- ``collision.npz``: ``vertices`` float32 (M, 3) and ``hull_offsets`` int32
+  (H + 1,); hull i is ``vertices[hull_offsets[i]:hull_offsets[i + 1]]``, a
+  convex point set (6 points for the wall prisms).
+
+Everything is written deterministically (fixed STL header, no timestamps,
+canonical vertex order, fixed float rounding in JSON), so the same parameters
+give byte-identical files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import pathlib
+import re
+import time
+import zipfile
+from typing import Dict, Mapping, NamedTuple, Optional, Sequence, Tuple
+
+import numpy as np
+
+FORMAT_VERSION = 1
+META_FILE = "meta.json"
+VISUAL_FILE = "visual.stl"
+COLLISION_FILE = "collision.npz"
+_STL_HEADER = b"cathsim-dmc lumen surface, metres".ljust(80, b" ")
+_STL_DTYPE = np.dtype([("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+_JSON_DECIMALS = 8  # 10 nm: far below any meshing tolerance
+
+
+class Centerline(NamedTuple):
+    points: np.ndarray   # (N, 3) metres, from the entry to the site
+    radius: np.ndarray   # (N,) lumen radius at each point, metres
+
+
+@dataclasses.dataclass(frozen=True)
+class AortaAsset:
+    """A loaded aorta asset. Arrays are read-only."""
+
+    path: pathlib.Path
+    name: str
+    meta: dict
+    sites: Dict[str, np.ndarray]
+    entry_position: np.ndarray
+    entry_direction: np.ndarray
+    centerlines: Dict[str, Centerline]
+    wall_thickness_m: float
+    bounds: np.ndarray               # (2, 3): min, max of the visual mesh
+    arch_type_distance_m: Optional[float]
+    cca_diameter_m: Optional[float]
+    visual_vertices: np.ndarray      # (V, 3) float32
+    visual_faces: np.ndarray         # (F, 3) int32
+    hull_vertices: np.ndarray        # (M, 3) float32
+    hull_offsets: np.ndarray         # (H + 1,) int32
+    params: dict
+
+    @property
+    def hull_count(self) -> int:
+        return len(self.hull_offsets) - 1
+
+    @property
+    def hulls(self) -> Tuple[np.ndarray, ...]:
+        """Each collision hull as its own (k, 3) float32 array."""
+        o = self.hull_offsets
+        return tuple(self.hull_vertices[o[i]:o[i + 1]] for i in range(len(o) - 1))
+
+
+# ----------------------------------------------------------------------------
+# Low-level file formats
+
+
+def _write_stl(path: pathlib.Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    v = np.asarray(vertices, dtype=np.float32)
+    tri = v[np.asarray(faces)]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).astype(np.float64)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    rec = np.zeros(len(tri), dtype=_STL_DTYPE)
+    rec["normal"] = n.astype(np.float32)
+    rec["v"] = tri
+    with open(path, "wb") as fh:
+        fh.write(_STL_HEADER)
+        fh.write(np.uint32(len(tri)).tobytes())
+        fh.write(rec.tobytes())
+
+
+def _read_stl(path: pathlib.Path) -> Tuple[np.ndarray, np.ndarray]:
+    data = path.read_bytes()
+    if len(data) < 84:
+        raise ValueError(f"Aorta asset file {path} is not a binary STL (too short).")
+    count = int(np.frombuffer(data, "<u4", 1, 80)[0])
+    if len(data) != 84 + count * _STL_DTYPE.itemsize:
+        raise ValueError(f"Aorta asset file {path} is not a binary STL: {count} triangles "
+                         f"declared but the file has {len(data)} bytes.")
+    rec = np.frombuffer(data, _STL_DTYPE, count, 84)
+    corners = rec["v"].reshape(-1, 3)
+    # STL repeats shared vertices; merge exact duplicates to recover the indexed mesh.
+    vertices, inverse = np.unique(corners, axis=0, return_inverse=True)
+    return vertices.astype(np.float32), inverse.reshape(-1, 3).astype(np.int32)
+
+
+def _write_npz(path: pathlib.Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Deterministic compressed npz: fixed member order, zip timestamps and modes."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for key in sorted(arrays):
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.ascontiguousarray(arrays[key]), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, buf.getvalue())
+
+
+def _rounded(x):
+    """JSON-ready nested lists with fixed rounding (deterministic, compact)."""
+    a = np.asarray(x, dtype=np.float64)
+    a = np.round(a, _JSON_DECIMALS) + 0.0   # + 0.0 turns -0.0 into 0.0
+    return a.tolist()
+
+
+def _dump_json(obj) -> str:
+    """Indented JSON with every innermost list of numbers on one line."""
+    text = json.dumps(obj, indent=1, allow_nan=False)
+    flat = lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]"
+    return re.sub(r"\[\s*([-+0-9.eE,\s]+?)\s*\]", flat, text) + "\n"
+
+
+def _json_params(params: Mapping) -> dict:
+    out = {}
+    for k, v in params.items():
+        out[k] = round(v, 12) if isinstance(v, float) else v
+    return out
+
+
+# ----------------------------------------------------------------------------
+# Writing
+
+
+def write_asset(folder, *, name: str, description: str,
+                vertices: np.ndarray, faces: np.ndarray, hulls: Sequence[np.ndarray],
+                sites: Mapping[str, Sequence[float]],
+                entry_position: Sequence[float], entry_direction: Sequence[float],
+                centerlines: Mapping[str, Tuple[np.ndarray, np.ndarray]],
+                wall_thickness_m: float, params: Mapping,
+                arch_type_distance_m: Optional[float] = None,
+                cca_diameter_m: Optional[float] = None,
+                extra: Optional[Mapping] = None) -> pathlib.Path:
+    """Write an asset folder (format_version 1). Returns the folder path.
+
+    `vertices`/`faces`: the closed lumen surface (outward normals) in metres.
+    `hulls`: convex point sets (an (H, k, 3) array or a list of (k_i, 3) arrays).
+    `centerlines`: name -> (points (N, 3), radius (N,)), entry to site.
+    """
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    v32 = vertices.astype(np.float32)
+    if len(np.unique(v32, axis=0)) != len(v32):
+        raise ValueError("Lumen vertices collide after rounding to float32; the mesh is too fine.")
+
+    hull_list = [np.asarray(h, dtype=np.float32) for h in hulls]
+    sizes = np.array([len(h) for h in hull_list], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+    hull_vertices = (np.concatenate(hull_list) if hull_list else np.zeros((0, 3))).astype(np.float32)
+
+    direction = np.asarray(entry_direction, dtype=np.float64)
+    direction = direction / np.linalg.norm(direction)
+    bounds = np.stack([v32.min(axis=0), v32.max(axis=0)]).astype(np.float64)
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "name": name,
+        "units": "m",
+        "description": description,
+        "sites": {k: _rounded(sites[k]) for k in sorted(sites)},
+        "entry": {"position": _rounded(entry_position), "direction": _rounded(direction)},
+        "centerlines": {k: {"points": _rounded(centerlines[k][0]),
+                            "radius_m": _rounded(centerlines[k][1])} for k in sorted(centerlines)},
+        "wall_thickness_m": float(wall_thickness_m),
+        "bounds": _rounded(bounds),
+        "arch_type_distance_m": None if arch_type_distance_m is None else _rounded(arch_type_distance_m),
+        "cca_diameter_m": None if cca_diameter_m is None else _rounded(cca_diameter_m),
+        "params": _json_params(params),
+    }
+    if extra:
+        meta.update({k: v for k, v in extra.items() if k not in meta})
+    (folder / META_FILE).write_text(_dump_json(meta))
+    _write_stl(folder / VISUAL_FILE, v32, faces)
+    _write_npz(folder / COLLISION_FILE, {"vertices": hull_vertices, "hull_offsets": offsets})
+    return folder
+
+
+# ----------------------------------------------------------------------------
+# Reading
+
+
+def _bad(path, what):
+    return ValueError(f"Aorta asset {path}: {what}.")
+
+
+def _vec3(path, key, value):
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise _bad(path, f"'{key}' must be a finite [x, y, z] list, got {value!r}")
+    return a
+
+
+def _readonly(a):
+    a = np.array(a)
+    a.setflags(write=False)
+    return a
+
+
+def load_asset(path) -> AortaAsset:
+    """Load and validate an asset folder. Raises FileNotFoundError/ValueError with one clear sentence."""
+    folder = pathlib.Path(path)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"Aorta asset folder {folder} does not exist.")
+    for fname in (META_FILE, VISUAL_FILE, COLLISION_FILE):
+        if not (folder / fname).is_file():
+            raise FileNotFoundError(f"Aorta asset {folder} is missing {fname}.")
+    meta_path = folder / META_FILE
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"Aorta asset file {meta_path} is not valid JSON ({exc}).") from None
+    if not isinstance(meta, dict):
+        raise _bad(meta_path, "the top level must be a JSON object")
+    version = meta.get("format_version")
+    if version != FORMAT_VERSION:
+        raise ValueError(f"Aorta asset {meta_path} has format_version {version!r}; "
+                         f"this cathsim-dmc reads format_version {FORMAT_VERSION}.")
+    required = ("name", "units", "sites", "entry", "centerlines", "wall_thickness_m", "bounds", "params")
+    for key in required:
+        if key not in meta:
+            raise _bad(meta_path, f"missing key '{key}'")
+    if meta["units"] != "m":
+        raise _bad(meta_path, f"units must be 'm', got {meta['units']!r}")
+
+    sites = {k: _readonly(_vec3(meta_path, f"sites.{k}", v)) for k, v in meta["sites"].items()}
+    if not sites:
+        raise _bad(meta_path, "'sites' is empty")
+    entry = meta["entry"]
+    if not isinstance(entry, dict) or "position" not in entry or "direction" not in entry:
+        raise _bad(meta_path, "'entry' must have 'position' and 'direction'")
+    entry_pos = _vec3(meta_path, "entry.position", entry["position"])
+    entry_dir = _vec3(meta_path, "entry.direction", entry["direction"])
+    if abs(np.linalg.norm(entry_dir) - 1.0) > 1e-6:
+        raise _bad(meta_path, f"'entry.direction' must be a unit vector, got {entry['direction']!r}")
+    centerlines = {}
+    for k, c in meta["centerlines"].items():
+        try:
+            pts = np.asarray(c["points"], dtype=np.float64)
+            rad = np.asarray(c["radius_m"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError):
+            raise _bad(meta_path, f"centerline '{k}' must have 'points' (N x 3) and 'radius_m' (N)") from None
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or rad.shape != (len(pts),):
+            raise _bad(meta_path, f"centerline '{k}' must have 'points' (N x 3, N >= 2) and 'radius_m' (N)")
+        centerlines[k] = Centerline(_readonly(pts), _readonly(rad))
+    missing = sorted(set(sites) - set(centerlines))
+    if missing:
+        raise _bad(meta_path, f"sites {missing} have no centerline")
+    bounds = np.asarray(meta["bounds"], dtype=np.float64)
+    if bounds.shape != (2, 3):
+        raise _bad(meta_path, f"'bounds' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {meta['bounds']!r}")
+
+    vis_v, vis_f = _read_stl(folder / VISUAL_FILE)
+    col_path = folder / COLLISION_FILE
+    try:
+        with np.load(col_path, allow_pickle=False) as npz:
+            hv = np.asarray(npz["vertices"])
+            ho = np.asarray(npz["hull_offsets"])
+    except KeyError as exc:
+        raise _bad(col_path, f"missing array {exc}") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"Aorta asset file {col_path} is not a readable npz ({exc}).") from None
+    if hv.dtype != np.float32 or hv.ndim != 2 or hv.shape[1] != 3:
+        raise _bad(col_path, f"'vertices' must be float32 (M, 3), got {hv.dtype} {hv.shape}")
+    if ho.dtype != np.int32 or ho.ndim != 1 or len(ho) < 2 or ho[0] != 0 or ho[-1] != len(hv) \
+            or np.any(np.diff(ho) < 4):
+        raise _bad(col_path, "'hull_offsets' must be int32, start at 0, end at len(vertices) "
+                             "and give every hull at least 4 points")
+
+    def opt(key):
+        v = meta.get(key)
+        return None if v is None else float(v)
+
+    return AortaAsset(
+        path=folder, name=str(meta["name"]), meta=meta, sites=sites,
+        entry_position=_readonly(entry_pos), entry_direction=_readonly(entry_dir),
+        centerlines=centerlines, wall_thickness_m=float(meta["wall_thickness_m"]),
+        bounds=_readonly(bounds), arch_type_distance_m=opt("arch_type_distance_m"),
+        cca_diameter_m=opt("cca_diameter_m"),
+        visual_vertices=_readonly(vis_v), visual_faces=_readonly(vis_f),
+        hull_vertices=_readonly(hv), hull_offsets=_readonly(ho), params=dict(meta["params"]))
+
+
+# ----------------------------------------------------------------------------
+# Building from parameters
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildReport:
+    path: pathlib.Path
+    triangles: int
+    hulls: int
+    seconds: float
+    arch_type_distance_m: float
+    cca_diameter_m: float
+    arch_type: str
+    path_length_m: Dict[str, float]
+
+
+def _wall_distance(vertices, faces, points):
+    """Unsigned distance (m) from each point to the triangles `faces`."""
+    import trimesh  # local: only the build needs it
+
+    # In millimetres: trimesh's absolute tolerances misjudge tiny triangles in metres.
+    mesh = trimesh.Trimesh(np.asarray(vertices) * 1e3, faces, process=False)
+    _, dist, _ = trimesh.proximity.closest_point(mesh, np.asarray(points) * 1e3)
+    return dist * 1e-3
+
+
+def build_asset(params, folder) -> BuildReport:
+    """Generate the arch described by `params` and write it to `folder`."""
+    from cathsim_dmc.anatomy import arch as arch_lib
+    from cathsim_dmc.anatomy import mesh as mesh_lib
+
+    t0 = time.perf_counter()
+    model = arch_lib.build_arch(params)
+    lumen = mesh_lib.build_lumen(model)
+    prisms = mesh_lib.extrude_prisms(lumen, params.wall_thickness_m)
+    centerlines, lengths = {}, {}
+    wall = lumen.faces[~lumen.cap]
+    for b in arch_lib.BRANCHES:
+        pts = arch_lib.path_to_site(model, b)
+        # Lumen radius = distance to the wall (the open end is not wall).
+        centerlines[b] = (pts, _wall_distance(lumen.vertices, wall, pts))
+        lengths[b] = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    p = model.params
+    if model.arch_type_measured != p.arch_type:
+        raise ValueError(
+            f"ArchParams '{p.name}' is labelled arch type {p.arch_type} but its BCA origin lies "
+            f"{model.arch_type_distance_m / model.cca_diameter_m:.2f} CCA diameters below the arch top "
+            f"(type {model.arch_type_measured}); fix bca_origin_drop_m or arch_type.")
+    description = (
+        f"Procedural aortic arch '{p.name}' (arch type {p.arch_type}, measured "
+        f"{model.arch_type_measured}): descending aorta (open inferior end, wire entry), arch, "
+        f"ascending aorta closed at the root; BCA, LCCA, LSA closed {p.branch_length_m('bca') * 100:.1f}/"
+        f"{p.branch_length_m('lcca') * 100:.1f}/{p.branch_length_m('lsa') * 100:.1f} cm past their ostia. "
+        f"Lumen: smooth union of tapered tubes ({p.blend_radius_m * 1e3:.0f} mm blend); "
+        f"wall: one {p.wall_thickness_m * 1e3:.0f} mm prism per lumen triangle.")
+    write_asset(
+        folder, name=p.name, description=description,
+        vertices=lumen.vertices, faces=lumen.faces, hulls=prisms,
+        sites={b: model.sites[b] for b in arch_lib.BRANCHES},
+        entry_position=model.entry_position, entry_direction=model.entry_direction,
+        centerlines=centerlines, wall_thickness_m=p.wall_thickness_m,
+        params=dataclasses.asdict(p),
+        arch_type_distance_m=model.arch_type_distance_m, cca_diameter_m=model.cca_diameter_m,
+        extra={"open_end": {"center": _rounded(model.open_end_center),
+                            "normal": [0.0, -1.0, 0.0],
+                            "radius_m": _rounded(model.open_end_radius)},
+               "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))}})
+    return BuildReport(
+        path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
+        seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,
+        cca_diameter_m=model.cca_diameter_m, arch_type=model.arch_type_measured,
+        path_length_m=lengths)
