@@ -1,0 +1,77 @@
+"""The operating scene: physics options, lights and the two cameras.
+
+``top`` looks along -z (patient posterior), the antero-posterior fluoroscopy view;
+``side`` looks along -x (patient left to right), the lateral view. Both are orthographic,
+as an X-ray projection nearly is, and are framed on an anatomy with `frame_cameras`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from dm_control import composer, mjcf
+
+PHYSICS_TIMESTEP_S = 0.002
+
+
+class OperatingArena(composer.Arena):
+    """Empty scene with lights, a top (AP) and a side (lateral) camera."""
+
+    def _build(self, name: str = "operating_room", timestep_s: float = PHYSICS_TIMESTEP_S):
+        super()._build(name=name)
+        root = self._mjcf_root
+        root.compiler.angle = "radian"
+        # implicitfast: joint damping and servo damping integrated implicitly (stable
+        # at stiff servos); elliptic cones: friction forces read out directly and
+        # more accurate than pyramids.
+        root.option.set_attributes(
+            timestep=timestep_s, integrator="implicitfast", cone="elliptic",
+            gravity=[0, 0, -9.81],
+        )
+        # Room for hundreds of wall contacts (the default 24 MB overflows in a jammed wire).
+        root.size.memory = "128M"
+        root.visual.quality.shadowsize = 0  # no shadow maps: they double software-GL cost
+        root.visual.map.znear = 0.001
+        root.visual.headlight.set_attributes(ambient=[0.5, 0.5, 0.5], diffuse=[0.5, 0.5, 0.5], specular=[0, 0, 0])
+        root.visual.rgba.haze = [0, 0, 0, 0]
+        root.worldbody.add("light", name="front", pos=[0, 0, 1], dir=[0, 0, -1], directional=True,
+                           castshadow=False, diffuse=[0.4, 0.4, 0.4])
+        self._top = root.worldbody.add("camera", name="top", pos=[0, 0, 1], quat=[1, 0, 0, 0],
+                                       projection="orthographic", fovy=0.3)
+        # Looking along -x: camera -z axis = world -x, camera up (+y) = world +y.
+        self._side = root.worldbody.add("camera", name="side", pos=[1, 0, 0], xyaxes=[0, 0, -1, 0, 1, 0],
+                                        projection="orthographic", fovy=0.3)
+
+    @property
+    def top_camera(self):
+        return self._top
+
+    @property
+    def side_camera(self):
+        return self._side
+
+    def frame_cameras(self, bounds_m, margin: float = 1.1):
+        """Centres both cameras on an axis-aligned box [[min xyz], [max xyz]] in metres."""
+        lo, hi = np.asarray(bounds_m, dtype=float)
+        centre = (lo + hi) / 2
+        extent = hi - lo
+        # For an orthographic camera, fovy is the visible height in metres; images are square.
+        self._top.pos = [centre[0], centre[1], hi[2] + 0.5]
+        self._top.fovy = float(max(extent[0], extent[1]) * margin)
+        self._side.pos = [hi[0] + 0.5, centre[1], centre[2]]
+        self._side.fovy = float(max(extent[2], extent[1]) * margin)
+        self._mjcf_root.visual.map.zfar = 5.0
+        self._mjcf_root.statistic.center = centre
+        self._mjcf_root.statistic.extent = float(np.max(extent))
+
+
+def top_camera_matrix(physics, camera_name: str = "top", size: int = 80) -> np.ndarray:
+    """3x4 matrix mapping world points (homogeneous, metres) to pixel coordinates."""
+    camera = physics.model.name2id(camera_name, "camera")
+    pos = physics.data.cam_xpos[camera]
+    rot = physics.data.cam_xmat[camera].reshape(3, 3)
+    fovy = physics.model.cam_fovy[camera]
+    scale = size / fovy
+    # Camera frame: x right, y up, looking along -z. Pixel u to the right, v down.
+    world_to_cam = np.concatenate([rot.T, (-rot.T @ pos)[:, None]], axis=1)
+    project = np.array([[scale, 0, 0, size / 2], [0, -scale, 0, size / 2], [0, 0, 0, 1]])
+    return project @ np.vstack([world_to_cam, [0, 0, 0, 1]])

@@ -1,0 +1,106 @@
+"""Aorta: an anatomy asset as a composer entity.
+
+The asset folder (format in the README) holds the lumen surface as one visual mesh,
+the wall as convex collision pieces, named sites and centerlines. Collision pieces sit
+in geom group 3, which observation renders never draw; the visual mesh is one geom in
+group 1, so drawing the vessel costs one mesh whatever the wall's piece count.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from dm_control import composer, mjcf
+
+from cathsim_dmc.anatomy import AortaAsset, load_asset
+from cathsim_dmc import geom_groups
+from cathsim_dmc.paths import resolve_asset
+
+
+class Aorta(composer.Entity):
+    """Vessel anatomy: wall collision pieces, one visual mesh, sites and centerlines."""
+
+    def _build(
+        self,
+        asset: str | Path = "type1",
+        friction: float = 0.1,  # wet, smooth endothelium / silicone phantom against a coated wire
+        solref: tuple = (0.004, 1.0),
+        solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
+        rgba: tuple = (0.85, 0.45, 0.45, 0.35),  # see-through, so the wire inside is visible
+        name: str | None = None,
+    ):
+        """Builds the anatomy.
+
+        Args:
+          asset: a shipped asset name (see `available_aortas`) or an asset folder path.
+          friction: sliding friction of the wall (MuJoCo takes the larger of the two
+            geoms' coefficients).
+          solref: contact time constant (s) and damping ratio of the wall. MuJoCo mixes
+            wall and wire parameters, so the wire should carry the same values.
+          solimp: contact impedance of the wall (see MuJoCo's solimp).
+          rgba: colour of the visual mesh.
+          name: model name (default: the asset's name).
+        """
+        self._asset: AortaAsset = load_asset(resolve_asset(asset))
+        self._mjcf_root = mjcf.RootElement(model=name or self._asset.name)
+        root = self._mjcf_root
+        root.default.geom.set_attributes(
+            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, condim=3, margin=0,
+            friction=[friction, 0.005, 0.0001], solref=list(solref), solimp=list(solimp),
+            group=geom_groups.COLLISION, rgba=[0.5, 0.5, 0.5, 0.3],
+        )
+        body = root.worldbody
+        for i, hull in enumerate(self._asset.hulls):
+            mesh = root.asset.add("mesh", name=f"hull{i}", vertex=np.asarray(hull, dtype=float).ravel())
+            body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
+        visual = root.asset.add(
+            "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel())
+        body.add("geom", name="lumen", type="mesh", mesh=visual, contype=0, conaffinity=0,
+                 group=geom_groups.VISUAL, rgba=list(rgba))
+        self._sites = {}
+        for site_name, pos in {**self._asset.sites, "entry": self._asset.entry_position}.items():
+            self._sites[site_name] = body.add(
+                "site", name=site_name, pos=pos, size=[0.0015], rgba=[0, 0.6, 1, 1], group=geom_groups.MARKER)
+
+    @property
+    def mjcf_model(self):
+        return self._mjcf_root
+
+    @property
+    def asset(self) -> AortaAsset:
+        return self._asset
+
+    @property
+    def name(self) -> str:
+        return self._asset.name
+
+    @property
+    def targets(self) -> dict:
+        """Target positions in metres, by site name (bca, lcca, lsa)."""
+        return dict(self._asset.sites)
+
+    @property
+    def sites(self) -> dict:
+        """MJCF sites by name: the targets and `entry`."""
+        return dict(self._sites)
+
+    @property
+    def entry_position_m(self) -> np.ndarray:
+        return np.asarray(self._asset.entry_position, dtype=float)
+
+    @property
+    def entry_direction(self) -> np.ndarray:
+        return np.asarray(self._asset.entry_direction, dtype=float)
+
+    @property
+    def bounds_m(self) -> np.ndarray:
+        return np.asarray(self._asset.bounds, dtype=float)
+
+    def centerline(self, target: str) -> np.ndarray:
+        """Polyline (n, 3) in metres from the entry to `target`."""
+        return np.asarray(self._asset.centerlines[target].points)
+
+    @composer.cached_property
+    def collision_geoms(self):
+        return tuple(g for g in self._mjcf_root.find_all("geom") if g.name.startswith("hull"))

@@ -1,0 +1,191 @@
+"""FollowerRobot: a CathBot-style follower that inserts and rotates a guidewire.
+
+Frame: the robot's origin is its *outlet*, the point where the wire leaves the guide
+channel and enters the vessel; +z is the insertion direction. Behind the outlet lies the
+rail along -z, with a carriage on a prismatic joint (insertion) carrying the guidewire
+rotary platform on a hinge about the wire axis (rotation). The wire's proximal end is
+rigidly attached to that platform (perfect grip, no slip). A catheter rotary platform and
+two clamps complete the CathBot layout; they have joints but no actuators here.
+
+The wire between the carriage and the outlet runs through a straight guide channel (an
+introducer), so it cannot buckle outside the anatomy.
+
+Both actuated joints are integrated-velocity servos: the action sets a velocity, MuJoCo
+integrates it into a set point (an actuator state limited to the joint's travel), and a
+stiff, damped position servo follows it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from dm_control import composer, mjcf
+from dm_control.composer.observation import observable
+
+from cathsim_dmc import geom_groups
+
+
+
+class FollowerRobot(composer.Entity):
+    """Rail, carriage (insertion), guidewire rotary platform (rotation), clamps."""
+
+    def _build(
+        self,
+        wire_length_m: float = 0.35,
+        stroke_m: float = 0.30,
+        initial_insertion_m: float = 0.025,
+        max_insertion_speed_m_s: float = 0.04,  # CathBot-class followers: tens of mm/s
+        max_rotation_speed_rad_s: float = np.pi,  # half a turn per second
+        max_insertion_force_n: float = 5.0,  # manual pushes stay below ~2 N; a robot stalls beyond
+        channel_clearance_m: float = 0.3e-3,
+        wire_radius_m: float = 0.445e-3,
+        servo_stiffness_n_m: float = 2e4,
+        servo_stiffness_nm_rad: float = 50.0,
+        name: str = "follower",
+    ):
+        """Builds the robot.
+
+        Args:
+          wire_length_m: length of the wire it holds, in metres (sets the rail length).
+          stroke_m: insertion travel of the carriage in metres.
+          initial_insertion_m: how far the wire tip starts past the outlet, in metres;
+            longer than the wire's shaped tip, which must start outside the channel.
+          max_insertion_speed_m_s: insertion speed at action +1, in m/s.
+          max_rotation_speed_rad_s: rotation rate at action +1, in rad/s.
+          max_insertion_force_n: force limit of the insertion drive, in newtons: a
+            blocked wire stalls the carriage instead of being pushed without bound.
+          channel_clearance_m: radial play between the wire and the guide channel.
+          wire_radius_m: radius of the held wire, in metres (sizes the channel).
+          servo_stiffness_n_m: insertion servo stiffness, N/m.
+          servo_stiffness_nm_rad: rotation servo stiffness, N m/rad.
+          name: model name.
+        """
+        if stroke_m >= wire_length_m - initial_insertion_m:
+            raise ValueError(
+                f"stroke_m={stroke_m} must be shorter than the wire behind the outlet "
+                f"({wire_length_m - initial_insertion_m} m) or the carriage hits the outlet"
+            )
+        self._mjcf_root = mjcf.RootElement(model=name)
+        self.max_insertion_speed_m_s = float(max_insertion_speed_m_s)
+        self.max_rotation_speed_rad_s = float(max_rotation_speed_rad_s)
+        self.stroke_m = float(stroke_m)
+        self.initial_insertion_m = float(initial_insertion_m)
+
+        root = self._mjcf_root
+        root.default.geom.set_attributes(contype=0, conaffinity=0, group=geom_groups.VISUAL, rgba=[0.6, 0.6, 0.65, 1])
+        # Wire base at the start of the stroke: the tip then sits initial_insertion_m past the outlet.
+        base_z = initial_insertion_m - wire_length_m
+        rail_len = wire_length_m + 0.04
+        wb = root.worldbody
+        wb.add("geom", name="rail", type="box", size=[0.01, 0.004, rail_len / 2],
+               pos=[0, -0.012, base_z + rail_len / 2 - 0.04])
+
+        self._carriage = wb.add("body", name="carriage", pos=[0, 0, base_z])
+        self._insertion = self._carriage.add(
+            "joint", name="insertion", type="slide", axis=[0, 0, 1], range=[0, stroke_m],
+            limited=True, damping=5.0, armature=1.0,
+        )
+        self._carriage.add("geom", name="carriage", type="box", size=[0.012, 0.004, 0.01], pos=[0, -0.008, -0.012], mass=0.2)
+        self._platform = self._carriage.add("body", name="wire_platform")
+        self._rotation = self._platform.add(
+            "joint", name="rotation", type="hinge", axis=[0, 0, 1], limited=False, damping=0.05, armature=0.01,
+        )
+        self._platform.add("geom", name="wire_platform", type="cylinder", size=[0.008, 0.004], pos=[0, 0, -0.005], mass=0.05)
+        self._wire_site = self._platform.add("site", name="wire_attachment", pos=[0, 0, 0], size=[0.001])
+
+        # Catheter rotary platform and the two clamps (CathBot layout; not actuated here).
+        cath = wb.add("body", name="catheter_platform", pos=[0, 0, base_z - 0.03])
+        self._catheter_rotation = cath.add("joint", name="catheter_rotation", type="hinge", axis=[0, 0, 1], damping=1.0, armature=0.01)
+        cath.add("geom", name="catheter_platform", type="cylinder", size=[0.008, 0.004], mass=0.05)
+        self._clamps = []
+        for side, x in (("left", 0.006), ("right", -0.006)):
+            clamp = self._carriage.add("body", name=f"clamp_{side}", pos=[x, 0, 0.008])
+            joint = clamp.add("joint", name=f"clamp_{side}", type="slide", axis=[1, 0, 0], range=[-0.003, 0.003],
+                              limited=True, damping=5.0, armature=0.01)
+            clamp.add("geom", name=f"clamp_{side}", type="box", size=[0.002, 0.003, 0.002], mass=0.01)
+            self._clamps.append(joint)
+
+        # Guide channel (introducer): four thin walls around the wire path, from the
+        # carriage's start to the outlet.
+        half = wire_radius_m + channel_clearance_m
+        wall = 0.5e-3
+        channel_len = -base_z
+        for i, (dx, dy) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
+            size = [wall, half + 2 * wall, channel_len / 2] if dx else [half + 2 * wall, wall, channel_len / 2]
+            wb.add("geom", name=f"guide{i}", type="box", size=size,
+                   pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
+                   contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, rgba=[0.45, 0.45, 0.5, 0.5])
+
+        # Integrated-velocity servos: d(setpoint)/dt = ctrl (joint units per second).
+        self._insertion_actuator = root.actuator.add(
+            "general", name="insertion", joint=self._insertion, dyntype="integrator",
+            gainprm=[servo_stiffness_n_m], biastype="affine",
+            biasprm=[0, -servo_stiffness_n_m, -2 * np.sqrt(servo_stiffness_n_m * 1.2)],
+            ctrllimited=True, ctrlrange=[-max_insertion_speed_m_s, max_insertion_speed_m_s],
+            actlimited=True, actrange=[0, stroke_m],
+            forcelimited=True, forcerange=[-max_insertion_force_n, max_insertion_force_n],
+        )
+        self._rotation_actuator = root.actuator.add(
+            "general", name="rotation", joint=self._rotation, dyntype="integrator",
+            gainprm=[servo_stiffness_nm_rad], biastype="affine",
+            biasprm=[0, -servo_stiffness_nm_rad, -2 * np.sqrt(servo_stiffness_nm_rad * 0.012)],
+            ctrllimited=True, ctrlrange=[-max_rotation_speed_rad_s, max_rotation_speed_rad_s],
+            actlimited=True, actrange=[-1e3, 1e3],
+        )
+
+    def _build_observables(self):
+        return FollowerRobotObservables(self)
+
+    @property
+    def mjcf_model(self):
+        return self._mjcf_root
+
+    @property
+    def wire_attachment_site(self):
+        """Site on the guidewire rotary platform where the wire's proximal end is held."""
+        return self._wire_site
+
+    @property
+    def joints(self):
+        """The actuated joints: (insertion, rotation)."""
+        return (self._insertion, self._rotation)
+
+    @property
+    def actuators(self):
+        return (self._insertion_actuator, self._rotation_actuator)
+
+    @composer.cached_property
+    def guide_geoms(self):
+        return tuple(g for g in self._mjcf_root.find_all("geom") if g.name.startswith("guide"))
+
+    def apply_action(self, physics, action):
+        """Sets servo velocities from an action in [-1, 1]^2 (insertion, rotation)."""
+        action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        physics.bind(self.actuators).ctrl = action * [self.max_insertion_speed_m_s, self.max_rotation_speed_rad_s]
+
+    def set_pose(self, physics, insertion_m: float = 0.0, rotation_rad: float = 0.0):
+        """Puts the carriage at `insertion_m` and the platform at `rotation_rad`, at rest.
+
+        Servo set points (actuator states) move with the joints, so the robot holds
+        the new pose. A reset (``mj_resetData``) leaves the robot at (0, 0).
+        """
+        pose = np.array([insertion_m, rotation_rad], dtype=float)
+        physics.bind(self.joints).qpos = pose
+        physics.bind(self.joints).qvel = 0.0
+        physics.bind(self.actuators).act = pose
+        physics.bind(self.actuators).ctrl = 0.0
+
+
+class FollowerRobotObservables(composer.Observables):
+
+    @composer.observable
+    def joint_pos(self):
+        """Insertion depth (m) and rotation angle (rad) of the carriage."""
+        return observable.MJCFFeature("qpos", self._entity.joints)
+
+    @composer.observable
+    def joint_vel(self):
+        return observable.MJCFFeature("qvel", self._entity.joints)
+
+    @property
+    def proprioception(self):
+        return [self.joint_pos, self.joint_vel]

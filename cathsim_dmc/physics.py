@@ -1,0 +1,97 @@
+"""Contact forces between the wire and the vessel, and divergence detection.
+
+MuJoCo fills ``data.contact`` and ``data.efc_force`` during ``mj_step`` *before* it
+integrates, so right after a step they describe the previous state. `wire_contacts`
+therefore runs ``mj_forward`` (position, velocity and constraint stages, no
+integration) to read forces that belong to the current state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+_WARNINGS_DIVERGENT = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+)
+
+
+@dataclass(frozen=True)
+class ContactForces:
+    """Wire-vessel contact forces at one instant (forces act on the vessel, newtons)."""
+
+    forces_n: np.ndarray  # (n, 3) world-frame force of each contact (normal + friction)
+    positions_m: np.ndarray  # (n, 3) contact points in metres
+    wire_geom_ids: np.ndarray  # (n,) which wire geom touches
+
+    @property
+    def magnitudes_n(self) -> np.ndarray:
+        return np.linalg.norm(self.forces_n, axis=1)
+
+    @property
+    def total_n(self) -> float:
+        """Sum of contact force magnitudes: the total load the wire puts on the wall."""
+        return float(self.magnitudes_n.sum())
+
+    @property
+    def max_n(self) -> float:
+        return float(self.magnitudes_n.max()) if len(self.forces_n) else 0.0
+
+    @property
+    def count(self) -> int:
+        return len(self.forces_n)
+
+
+def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True) -> ContactForces:
+    """Contact forces between wire geoms and any other geom.
+
+    Args:
+      physics: a dm_control Physics.
+      is_wire_geom: boolean array over all geom ids, True for the wire's geoms.
+      recompute: run ``mj_forward`` first so that the forces match the current state.
+    """
+    model, data = physics.model.ptr, physics.data.ptr
+    if recompute:
+        mujoco.mj_forward(model, data)
+    ncon = data.ncon
+    empty = np.zeros((0, 3))
+    if ncon == 0:
+        return ContactForces(empty, empty, np.zeros(0, dtype=int))
+    contact = data.contact
+    geom = contact.geom[:ncon]
+    wire1 = is_wire_geom[geom[:, 0]]
+    wire2 = is_wire_geom[geom[:, 1]]
+    keep = (wire1 ^ wire2) & (contact.efc_address[:ncon] >= 0)
+    if not keep.any():
+        return ContactForces(empty, empty, np.zeros(0, dtype=int))
+    address = contact.efc_address[:ncon][keep]
+    dim = contact.dim[:ncon][keep]
+    frame = contact.frame[:ncon][keep].reshape(-1, 3, 3)
+    # Elliptic cones (the arena's setting): rows are normal, then tangential forces in
+    # the contact frame. A frictionless contact (dim 1) has only the normal row.
+    local = np.zeros((len(address), 3))
+    local[:, 0] = data.efc_force[address]
+    has_friction = dim >= 3
+    if has_friction.any():
+        local[has_friction, 1] = data.efc_force[address[has_friction] + 1]
+        local[has_friction, 2] = data.efc_force[address[has_friction] + 2]
+    forces = np.einsum("nij,ni->nj", frame, local)
+    # The contact normal points from geom1 to geom2: make every force the one acting on
+    # the non-wire geom (the vessel), whichever side the wire is.
+    sign = np.where(wire1[keep], 1.0, -1.0)
+    forces *= sign[:, None]
+    wire_ids = np.where(wire1[keep], geom[keep, 0], geom[keep, 1])
+    return ContactForces(forces, contact.pos[:ncon][keep].copy(), wire_ids)
+
+
+def is_diverged(physics) -> bool:
+    """True if the state holds NaN/inf or MuJoCo flagged an unstable step."""
+    data = physics.data
+    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+        return True
+    warnings = data.ptr.warning
+    return any(warnings[w].number > 0 for w in _WARNINGS_DIVERGENT)
