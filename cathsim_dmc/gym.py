@@ -1,0 +1,115 @@
+"""Gymnasium adapter: ``gymnasium.make("cathsim_dmc/bca-type1-v0", obs="enn")``.
+
+Observations are a Dict: images channel-first uint8 (1, H, W) as stable-baselines3
+expects, vectors float32. ``terminated`` means the target was reached; ``truncated``
+means the 300-step limit or a diverged simulation (``info["diverged"]``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
+IMAGE_KEYS = ("pixels", "guidewire_mask")
+
+
+def env_id(task: str, aorta: str) -> str:
+    return ENV_ID_FORMAT.format(task=task, aorta=aorta)
+
+
+class CathSimEnv(gymnasium.Env):
+    """One (task, aorta) navigation environment behind the Gymnasium API."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, task: str = "bca", aorta: str = "type1", obs: str = "internal",
+                 render_mode: str | None = None, render_size: int = 480, **kwargs):
+        from cathsim_dmc import tasks  # deferred: building the suite needs the assets
+
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r}; choose None or 'rgb_array'")
+        self.render_mode = render_mode
+        self._render_size = int(render_size)
+        self._cameras = None
+        self._env = tasks.load(task, aorta, obs=obs, **kwargs)
+        self.task_name, self.aorta_name, self.obs_preset = task, aorta, obs
+        self.observation_space = spaces.Dict(
+            {key: _space(key, spec) for key, spec in self._env.observation_spec().items()})
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+    @property
+    def dm_env(self):
+        """The underlying composer environment."""
+        return self._env
+
+    @property
+    def task(self):
+        return self._env.task
+
+    @property
+    def physics(self):
+        return self._env.physics
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._env.random_state.seed(seed)
+        timestep = self._env.reset()
+        return self._observation(timestep), self._info()
+
+    def step(self, action):
+        timestep = self._env.step(np.asarray(action, dtype=np.float64))
+        terminated = bool(timestep.last() and timestep.discount == 0.0)
+        truncated = bool(timestep.last() and not terminated)
+        return self._observation(timestep), float(timestep.reward), terminated, truncated, self._info()
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from cathsim_dmc.observables import CameraCache, video_frame
+
+        if self._cameras is None:
+            self._cameras = CameraCache()
+        return video_frame(self._env.physics, self._render_size, cache=self._cameras)
+
+    def close(self):
+        if getattr(self, "_env", None) is not None:
+            self._env.close()
+            self._env = None
+
+    def _observation(self, timestep):
+        out = {}
+        for key, value in timestep.observation.items():
+            if key in IMAGE_KEYS:
+                out[key] = np.ascontiguousarray(np.moveaxis(value, -1, 0))
+            else:
+                out[key] = np.asarray(value, dtype=np.float32).reshape(self.observation_space[key].shape)
+        return out
+
+    def _info(self):
+        info = dataclasses.asdict(self._env.task.step_info(self._env.physics))
+        info["step"] = self._env.task.step_count
+        return info
+
+
+def _space(key, spec):
+    if key in IMAGE_KEYS:
+        h, w, c = spec.shape
+        return spaces.Box(0, 255, shape=(c, h, w), dtype=np.uint8)
+    shape = spec.shape if spec.shape else (1,)
+    return spaces.Box(-np.inf, np.inf, shape=shape, dtype=np.float32)
+
+
+def register_all() -> None:
+    """Register an id for every pair in the suite (idempotent)."""
+    from cathsim_dmc.tasks import ALL_TASKS
+
+    for task, aorta in ALL_TASKS:
+        name = env_id(task, aorta)
+        if name not in gymnasium.registry:
+            gymnasium.register(id=name, entry_point="cathsim_dmc.gym:CathSimEnv",
+                               kwargs={"task": task, "aorta": aorta})

@@ -1,0 +1,57 @@
+"""The navigation suite: every (target, aorta) pair, loaded like a dm_control suite task.
+
+    from cathsim_dmc import tasks
+    env = tasks.load("bca", "type1", obs="enn", seed=0)
+    tasks.ALL_TASKS  # (("bca", "type1"), ("lcca", "type1"), ...)
+"""
+
+from __future__ import annotations
+
+from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
+from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
+from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate
+
+TARGETS = ("bca", "lcca")
+OBSERVATIONS = tuple(OBSERVATION_PRESETS)
+ALL_TASKS = tuple((target, aorta) for aorta in available_aortas() for target in TARGETS)
+
+
+def validate(task: str, aorta: str, obs: str = "internal") -> None:
+    """Raise ValueError naming the valid choices if any name is unknown."""
+    if task not in TARGETS:
+        raise ValueError(f"task={task!r} is not a navigation target; choose one of {list(TARGETS)}")
+    aortas = available_aortas()
+    if aorta not in aortas:
+        raise ValueError(f"aorta={aorta!r} is not a shipped aorta; choose one of {list(aortas)}")
+    if obs not in OBSERVATION_PRESETS:
+        raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
+
+
+def build_task(
+    task: str = "bca",
+    aorta: str = "type1",
+    obs: str = "internal",
+    guidewire: dict | None = None,
+    robot: dict | None = None,
+    aorta_options: dict | None = None,
+    image_size: int | None = None,
+    **task_kwargs,
+) -> Navigate:
+    """The Navigate task for a (target, aorta) pair with entity parameters overridden."""
+    validate(task, aorta, obs)
+    settings = observation_settings(obs, **({"image_size": image_size} if image_size else {}))
+    wire = Guidewire(**(guidewire or {}))
+    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **(robot or {}))
+    vessel = Aorta(asset=aorta, **(aorta_options or {}))
+    return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)
+
+
+def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=None,
+         environment_kwargs: dict | None = None, **kwargs) -> NavigationEnvironment:
+    """A ready composer environment for (task, aorta); kwargs go to `build_task`."""
+    navigate = build_task(task, aorta, obs, **kwargs)
+    return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
+
+
+__all__ = ["ALL_TASKS", "TARGETS", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "load", "validate"]

@@ -1,0 +1,255 @@
+"""Navigate: steer the guidewire tip from the descending aorta into a target branch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import dm_env.specs
+from dm_control import composer
+from dm_control.composer.observation import observable
+
+from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.arena import OperatingArena
+from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
+from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView
+
+CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
+MAX_STEPS = 300  # the paper's episode limit
+SUCCESS_RADIUS_M = 0.004  # the paper's delta
+SUCCESS_REWARD = 10.0
+
+
+@dataclass
+class StepInfo:
+    """What a step reports besides reward and observation (SI units)."""
+
+    tip_position_m: np.ndarray
+    target_distance_m: float
+    contact_force_n: float
+    max_contact_force_n: float
+    success: bool
+    diverged: bool
+
+
+class Navigate(composer.Task):
+    """Reach `target` (a site of the aorta) with the guidewire tip.
+
+    Reward: `success_reward` when the tip is within `delta_m` of the target (which ends
+    the episode), otherwise minus the distance in metres (dense) or 0 (sparse). After
+    `max_steps` control steps the episode is truncated (discount 1). A diverged
+    simulation also truncates, with `diverged` set in `step_info`.
+    """
+
+    def __init__(
+        self,
+        aorta: Aorta,
+        guidewire: Guidewire,
+        robot: FollowerRobot,
+        target: str = "bca",
+        delta_m: float = SUCCESS_RADIUS_M,
+        success_reward: float = SUCCESS_REWARD,
+        dense: bool = True,
+        max_steps: int = MAX_STEPS,
+        observations: ObservationSettings = OBSERVATION_PRESETS["internal"],
+        control_timestep_s: float = CONTROL_TIMESTEP_S,
+        start_insertion_jitter_m: float = 0.002,
+        start_rotation_rad: float = np.pi,
+        start_rotation_jitter_rad: float = 0.3,
+    ):
+        if target not in aorta.targets:
+            raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
+        self._aorta = aorta
+        self._guidewire = guidewire
+        self._robot = robot
+        self._target_name = target
+        self._delta_m = float(delta_m)
+        self._success_reward = float(success_reward)
+        self._dense = bool(dense)
+        self._max_steps = int(max_steps)
+        self._insertion_jitter_m = float(start_insertion_jitter_m)
+        self._start_rotation_rad = float(start_rotation_rad)
+        self._rotation_jitter_rad = float(start_rotation_jitter_rad)
+        self._settings = observations
+
+        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s)
+        self._arena.attach(aorta)
+        self._arena.frame_cameras(aorta.bounds_m)
+        robot_frame = self._arena.attach(robot)
+        # Outlet behind the entry, so that the tip starts at the entry.
+        robot_frame.pos = aorta.entry_position_m - robot.initial_insertion_m * aorta.entry_direction
+        robot_frame.quat = _quat_z_to(aorta.entry_direction)
+        robot.attach(guidewire, robot.wire_attachment_site)
+        self._target = TargetMarker(radius_m=self._delta_m, name="target")
+        target_frame = self._arena.attach(self._target)
+        target_frame.pos = aorta.targets[target]
+
+        self.set_timesteps(control_timestep=control_timestep_s, physics_timestep=guidewire.physics_timestep_s)
+        self._task_observables = self._build_task_observables(observations)
+
+        self._step_count = 0
+        self._success = False
+        self._diverged = False
+        self._contacts = None  # cached per control step
+
+    # -- structure -------------------------------------------------------------
+    @property
+    def root_entity(self):
+        return self._arena
+
+    @property
+    def aorta(self):
+        return self._aorta
+
+    @property
+    def guidewire(self):
+        return self._guidewire
+
+    @property
+    def robot(self):
+        return self._robot
+
+    @property
+    def target_name(self) -> str:
+        return self._target_name
+
+    @property
+    def target_position_m(self) -> np.ndarray:
+        return np.asarray(self._aorta.targets[self._target_name], dtype=float)
+
+    @property
+    def max_steps(self) -> int:
+        return self._max_steps
+
+    @property
+    def task_observables(self):
+        return self._task_observables
+
+    def _build_task_observables(self, settings: ObservationSettings):
+        wire_and_robot = list(self._robot.joints) + list(self._guidewire.joints)
+        self._top_view = TopView(settings.image_size)
+        obs = {
+            "joint_pos": observable.MJCFFeature("qpos", wire_and_robot),
+            "joint_vel": observable.MJCFFeature("qvel", wire_and_robot),
+            "pixels": observable.Generic(lambda physics: self._top_view.image(physics, settings.style)),
+            "guidewire_mask": observable.Generic(self._top_view.mask),
+            "tip_position": observable.MJCFFeature("xpos", self._guidewire.tip_site),
+            "contact_force": observable.Generic(
+                lambda physics: np.array([self.contact_forces(physics).total_n], dtype=np.float64)),
+        }
+        for name, obs_item in obs.items():
+            obs_item.enabled = name in settings.enabled
+        return obs
+
+    # -- episode ---------------------------------------------------------------
+    def initialize_episode(self, physics, random_state):
+        # The wire takes its rest shape in its own initialize_episode hook.
+        insertion = random_state.uniform(0.0, self._insertion_jitter_m)
+        rotation = self._start_rotation_rad + random_state.uniform(
+            -self._rotation_jitter_rad, self._rotation_jitter_rad)
+        self._robot.set_pose(physics, insertion, rotation)
+        self._step_count = 0
+        self._success = False
+        self._diverged = False
+        self._contacts = None
+        self._wire_mask = np.zeros(physics.model.ngeom, dtype=bool)
+        self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
+
+    def before_step(self, physics, action, random_state):
+        self._robot.apply_action(physics, action)
+        self._contacts = None
+
+    def after_step(self, physics, random_state):
+        self._step_count += 1
+        self._diverged = cs_physics.is_diverged(physics)
+        if not self._diverged:
+            self._success = self.target_distance_m(physics) <= self._delta_m
+
+    def action_spec(self, physics):
+        return dm_env.specs.BoundedArray(
+            shape=(2,), dtype=np.float32, minimum=-1.0, maximum=1.0, name="insertion,rotation")
+
+    def get_reward(self, physics):
+        if self._diverged:
+            return 0.0
+        if self._success:
+            return self._success_reward
+        return -self.target_distance_m(physics) if self._dense else 0.0
+
+    def should_terminate_episode(self, physics):
+        return self._success or self._diverged or self._step_count >= self._max_steps
+
+    def get_discount(self, physics):
+        # Success is a true terminal state; the time limit and divergence truncate.
+        return 0.0 if self._success else 1.0
+
+    # -- measurements ----------------------------------------------------------
+    def tip_position_m(self, physics) -> np.ndarray:
+        return physics.bind(self._guidewire.tip_site).xpos.copy()
+
+    def target_distance_m(self, physics) -> float:
+        return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
+
+    def contact_forces(self, physics) -> cs_physics.ContactForces:
+        """Wire-vessel contact forces for the current state (computed once per step)."""
+        if self._contacts is None:
+            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask)
+        return self._contacts
+
+    @property
+    def diverged(self) -> bool:
+        return self._diverged
+
+    @property
+    def success(self) -> bool:
+        return self._success
+
+    @property
+    def step_count(self) -> int:
+        return self._step_count
+
+    def step_info(self, physics) -> StepInfo:
+        contacts = self.contact_forces(physics)
+        return StepInfo(
+            tip_position_m=self.tip_position_m(physics),
+            target_distance_m=self.target_distance_m(physics),
+            contact_force_n=contacts.total_n,
+            max_contact_force_n=contacts.max_n,
+            success=self._success,
+            diverged=self._diverged,
+        )
+
+
+class NavigationEnvironment(composer.Environment):
+    """composer.Environment that turns a physics divergence into a truncation.
+
+    composer ends a diverged episode with discount 0 (as if terminal); a diverged
+    simulation says nothing about the task, so the episode is cut with discount 1.
+    """
+
+    def __init__(self, task: Navigate, **kwargs):
+        kwargs.setdefault("raise_exception_on_physics_error", False)
+        kwargs.setdefault("strip_singleton_obs_buffer_dim", True)
+        kwargs.setdefault("recompile_mjcf_every_episode", False)
+        super().__init__(task, **kwargs)
+
+    def step(self, action):
+        timestep = super().step(action)
+        if self.task.diverged and timestep.last():
+            timestep = timestep._replace(reward=0.0, discount=1.0)
+        return timestep
+
+
+def _quat_z_to(direction) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) rotating +z onto `direction`."""
+    d = np.asarray(direction, dtype=float)
+    d = d / np.linalg.norm(d)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, d)
+    s = np.linalg.norm(axis)
+    c = float(np.dot(z, d))
+    if s < 1e-12:
+        return np.array([1.0, 0, 0, 0]) if c > 0 else np.array([0.0, 1, 0, 0])
+    angle = np.arctan2(s, c)
+    axis /= s
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])

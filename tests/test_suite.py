@@ -1,0 +1,79 @@
+"""Every registered (task, aorta) pair: specs, rewards, termination, truncation."""
+
+import numpy as np
+import pytest
+
+from cathsim_dmc import tasks
+from cathsim_dmc.paths import available_aortas
+
+
+def test_all_tasks_lists_every_pair():
+    assert tasks.ALL_TASKS, "no shipped aorta"
+    assert set(tasks.ALL_TASKS) == {(t, a) for t in tasks.TARGETS for a in available_aortas()}
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(task="xyz"), "task='xyz'.*bca"),
+    (dict(aorta="xyz"), "aorta='xyz'.*type1"),
+    (dict(obs="xyz"), "obs='xyz'.*enn"),
+])
+def test_unknown_names_name_the_choices(bad, match):
+    kwargs = dict(task="bca", aorta="type1", obs="internal") | bad
+    with pytest.raises(ValueError, match=match):
+        tasks.load(**kwargs)
+
+
+@pytest.mark.parametrize("task, aorta", tasks.ALL_TASKS)
+def test_task_observations_rewards_and_truncation(task, aorta):
+    env = tasks.load(task, aorta, obs="enn", seed=0, max_steps=5)
+    spec = env.observation_spec()
+    assert set(spec) == {"pixels", "guidewire_mask", "joint_pos", "joint_vel"}
+    timestep = env.reset()
+    for key, value in timestep.observation.items():
+        assert value.shape == spec[key].shape, key
+        assert value.dtype == spec[key].dtype, key
+    assert spec["pixels"].shape == (80, 80, 1) and spec["pixels"].dtype == np.uint8
+    rng = np.random.default_rng(0)
+    steps = 0
+    while not timestep.last():
+        timestep = env.step(rng.uniform(-1, 1, 2))
+        steps += 1
+        distance = env.task.target_distance_m(env.physics)
+        # Dense reward: minus the distance in metres (the tip starts ~0.2 m away).
+        assert timestep.reward == pytest.approx(-distance)
+        assert -0.5 < timestep.reward < 0
+    assert steps == 5 and timestep.discount == 1.0  # time limit: truncation, not termination
+    assert env.task.target_position_m.shape == (3,)
+
+
+def test_success_terminates_with_reward_and_zero_discount():
+    # A success radius larger than the anatomy: the first step already succeeds.
+    env = tasks.load("lcca", "type1", obs="internal", seed=0, delta_m=1.0, success_reward=10.0)
+    env.reset()
+    timestep = env.step(np.zeros(2))
+    assert timestep.last() and timestep.reward == 10.0 and timestep.discount == 0.0
+
+
+def test_reset_does_not_recompile():
+    env = tasks.load("bca", "type1", seed=0)
+    env.reset()
+    model = env.physics.model.ptr
+    for _ in range(3):
+        env.step(np.array([1.0, 0.0]))
+    env.reset()
+    assert env.physics.model.ptr is model
+
+
+def test_divergence_truncates_and_next_reset_works():
+    env = tasks.load("bca", "type1", seed=0)
+    env.reset()
+    env.step(np.array([1.0, 0.0]))
+    env.physics.data.qvel[:] = np.nan  # force a blow-up
+    timestep = env.step(np.array([1.0, 0.0]))
+    assert timestep.last() and timestep.discount == 1.0 and timestep.reward == 0.0
+    assert env.task.diverged
+    timestep = env.reset()
+    assert not env.task.diverged
+    assert np.all(np.isfinite(env.physics.data.qpos))
+    timestep = env.step(np.array([1.0, 0.0]))
+    assert timestep.mid() and np.isfinite(timestep.reward)
