@@ -1,0 +1,88 @@
+"""The trajectory file every tool writes and reads (``trajectories.npz``).
+
+Schema (version 1): one row per control step, all episodes concatenated.
+
+  schema_version     ()        int, 1
+  task, aorta        ()        str
+  episode            (N,)      int, episode index
+  step               (N,)      int, step within the episode (1 = after the first action)
+  action             (N, 2)    float32, [insertion, rotation] in [-1, 1]
+  reward             (N,)      float32
+  tip_position_m     (N, 3)    float32, tip after the step, metres
+  contact_force_n    (N,)      float32, total wire-vessel contact force after the step, newtons
+  target_distance_m  (N,)      float32
+  success            (N,)      bool, tip within the success radius after the step
+  terminated         (N,)      bool, episode ended at the target
+  truncated          (N,)      bool, episode cut by the time limit or divergence
+  start_tip_position_m (E, 3)  float32, tip at reset, per episode
+  target_position_m  (3,)      float32
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+_PER_STEP = {
+    "episode": np.int32, "step": np.int32, "action": np.float32, "reward": np.float32,
+    "tip_position_m": np.float32, "contact_force_n": np.float32, "target_distance_m": np.float32,
+    "success": bool, "terminated": bool, "truncated": bool,
+}
+
+
+@dataclass
+class TrajectoryRecorder:
+    """Collects steps from any policy, writes the versioned npz."""
+
+    task: str
+    aorta: str
+    target_position_m: np.ndarray
+    rows: dict = field(default_factory=lambda: {k: [] for k in _PER_STEP})
+    starts: list = field(default_factory=list)
+
+    def start_episode(self, tip_position_m) -> None:
+        self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
+
+    def record(self, action, reward, info, terminated, truncated) -> None:
+        values = {
+            "episode": len(self.starts) - 1, "step": info["step"], "action": action, "reward": reward,
+            "tip_position_m": info["tip_position_m"], "contact_force_n": info["contact_force_n"],
+            "target_distance_m": info["target_distance_m"], "success": info["success"],
+            "terminated": terminated, "truncated": truncated,
+        }
+        for key, value in values.items():
+            self.rows[key].append(value)
+
+    def arrays(self) -> dict:
+        out = {key: np.asarray(self.rows[key], dtype=dtype) for key, dtype in _PER_STEP.items()}
+        out["action"] = out["action"].reshape(-1, 2)
+        out["tip_position_m"] = out["tip_position_m"].reshape(-1, 3)
+        out.update(
+            schema_version=np.int32(SCHEMA_VERSION), task=np.str_(self.task), aorta=np.str_(self.aorta),
+            start_tip_position_m=np.asarray(self.starts, dtype=np.float32).reshape(-1, 3),
+            target_position_m=np.asarray(self.target_position_m, dtype=np.float32),
+        )
+        return out
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, **self.arrays())
+        tmp.replace(path)  # atomic: a reader never sees half a file
+        return path
+
+
+def load_trajectories(path) -> dict:
+    """Read a trajectory file; one clear error if it is missing or of another schema."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no trajectory file at {path}")
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files}
+    version = int(arrays.get("schema_version", -1))
+    if version != SCHEMA_VERSION:
+        raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
+    return arrays
