@@ -65,6 +65,7 @@ class FollowerRobot(composer.Entity):
                 f"({wire_length_m - initial_insertion_m} m) or the carriage hits the outlet"
             )
         self._mjcf_root = mjcf.RootElement(model=name)
+        self._mjcf_root.compiler.angle = "radian"
         self.max_insertion_speed_m_s = float(max_insertion_speed_m_s)
         self.max_rotation_speed_rad_s = float(max_rotation_speed_rad_s)
         self.stroke_m = float(stroke_m)

@@ -6,9 +6,13 @@ hinges (bending about x and about y); there is no twist hinge, so the chain is
 torsionally rigid and a rotation of the proximal end turns the tip 1:1, as a real,
 torsionally stiff wire does.
 
-Bending stiffness per joint is k = E I / l, with I = pi d^4 / 64 and l the spacing of
-the joints: a discrete Euler-Bernoulli rod, so a finer or coarser chain is the same
-physical wire. The distal ``tip_length_m`` is softer and pre-shaped through the spring
+Bending stiffness per joint is k = E I / l, with I = pi d^4 / 64 and l the length of
+rod the joint stands for (half of each neighbouring segment; in series where the
+modulus changes): a discrete Euler-Bernoulli rod, so a finer or coarser chain is the
+same physical wire. The proximal segment is half length, which puts every joint at the
+midpoint of the rod piece it represents (midpoint rule): a clamped cantilever then
+deflects within ~0.1% of beam theory at 20 segments, instead of -1.5/n with the joints
+at the piece ends. The distal ``tip_length_m`` is softer and pre-shaped through the spring
 rest angles of its joints.
 """
 
@@ -100,15 +104,17 @@ class Guidewire(composer.Entity):
             raise ValueError("need n_segments >= 2 and n_tip_segments >= 1")
 
         self._mjcf_root = mjcf.RootElement(model=name)
+        self._mjcf_root.compiler.angle = "radian"  # springref below is in radians
         self.length_m = float(length_m)
         self.diameter_m = float(diameter_m)
         self.radius_m = diameter_m / 2.0
         self.tip_length_m = float(tip_length_m)
         self.physics_timestep_s = float(physics_timestep_s)
 
-        shaft_l = (length_m - tip_length_m) / n_segments
+        # Half-length proximal segment: see the module docstring (midpoint rule).
+        shaft_l = (length_m - tip_length_m) / (n_segments - 0.5)
         tip_l = tip_length_m / n_tip_segments
-        seg_lengths = [shaft_l] * n_segments + [tip_l] * n_tip_segments
+        seg_lengths = [shaft_l / 2] + [shaft_l] * (n_segments - 1) + [tip_l] * n_tip_segments
         seg_moduli = [youngs_modulus_pa] * n_segments + [tip_youngs_modulus_pa] * n_tip_segments
         inertia_area = second_moment_of_area(diameter_m)
         self.bending_stiffness_nm2 = youngs_modulus_pa * inertia_area  # EI of the shaft
@@ -144,10 +150,11 @@ class Guidewire(composer.Entity):
             mass = density_kg_m3 * math.pi * self.radius_m**2 * seg_l * mass_scale
             body.add("geom", name=f"geom{i}", fromto=[0, 0, 0, 0, 0, seg_l], mass=mass)
             if i > 0:
-                # Joint between segment i-1 and i: spacing is the mean of their lengths,
-                # modulus the softer of the two (the joint sits at the boundary).
-                spacing = 0.5 * (seg_lengths[i - 1] + seg_l)
-                k = min(modulus, seg_moduli[i - 1]) * inertia_area / spacing
+                # The joint stands for half of each neighbouring segment (all of the
+                # held proximal one), as two beam pieces in series.
+                before = seg_lengths[i - 1] if i == 1 else seg_lengths[i - 1] / 2
+                compliance = before / seg_moduli[i - 1] + (seg_l / 2) / modulus
+                k = inertia_area / compliance
                 armature = quasi_static_armature(k, physics_timestep_s)
                 damping = damping_ratio * 2.0 * math.sqrt(k * armature)
                 tip_index = i - n_segments  # >= 0 for joints inside the tip

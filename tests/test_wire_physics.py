@@ -1,0 +1,85 @@
+"""The wire against beam theory, its tip shape, and contact-force readings."""
+
+import mujoco
+import numpy as np
+import pytest
+from dm_control import mjcf
+
+from cathsim_dmc import geom_groups
+from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.arena import OperatingArena
+from cathsim_dmc.entities import FollowerRobot, Guidewire
+
+
+def _bare_physics(wire):
+    root = mjcf.RootElement()
+    root.option.set_attributes(gravity=[0, 0, 0], integrator="implicitfast", timestep=wire.physics_timestep_s)
+    root.worldbody.attach(wire.mjcf_model)  # proximal segment welded at the origin, wire along +z
+    return mjcf.Physics.from_mjcf_model(root)
+
+
+@pytest.mark.parametrize("n_segments", [10, 40])
+def test_cantilever_deflection_matches_euler_bernoulli(n_segments):
+    length, force, modulus = 0.1, 1e-3, 40e9
+    wire = Guidewire(length_m=length, n_segments=n_segments, n_tip_segments=1, tip_length_m=length / n_segments,
+                     youngs_modulus_pa=modulus, tip_youngs_modulus_pa=modulus, tip_shape="straight")
+    physics = _bare_physics(wire)
+    model, data = physics.model.ptr, physics.data.ptr
+    tip_body = physics.bind(wire.segments[-1]).element_id
+    tip_site = physics.bind(wire.tip_site).element_id
+    for _ in range(3000):  # damped to rest under a constant transverse tip load
+        data.qfrc_applied[:] = 0
+        mujoco.mj_applyFT(model, data, np.array([force, 0, 0]), np.zeros(3), data.site_xpos[tip_site].copy(),
+                          tip_body, data.qfrc_applied)
+        mujoco.mj_step(model, data)
+    assert np.abs(data.qvel).max() < 1e-8, "not at rest"
+    deflection = data.site_xpos[tip_site][0]
+    analytic = force * length**3 / (3 * modulus * np.pi * wire.diameter_m**4 / 64)
+    assert deflection == pytest.approx(analytic, rel=0.05)
+    # Measured: -0.22% at 10 segments, -0.02% at 40 (midpoint placement of the joints).
+    assert abs(deflection / analytic - 1) < 0.01
+
+
+@pytest.mark.parametrize("shape, angle_deg", [("angled", 45.0), ("angled", 70.0), ("j", 180.0)])
+def test_tip_rests_at_its_configured_angle(shape, angle_deg):
+    wire = Guidewire(length_m=0.1, n_segments=10, tip_shape=shape, tip_angle_deg=angle_deg)
+    physics = _bare_physics(wire)
+    wire.initialize_episode(physics, None)
+    for _ in range(500):
+        physics.step()
+    segments = physics.bind(wire.segments)
+    shaft_axis = segments.xmat[0].reshape(3, 3)[:, 2]
+    tip_axis = segments.xmat[-1].reshape(3, 3)[:, 2]
+    measured = np.degrees(np.arccos(np.clip(shaft_axis @ tip_axis, -1, 1)))
+    assert measured == pytest.approx(angle_deg, abs=5.0)
+    # The bend is in the wire's x-z plane, towards +x.
+    assert physics.bind(wire.tip_site).xpos[0] > 0
+
+
+def test_contact_force_reads_the_push_against_a_wall():
+    """The insertion drive stalls at its force limit against a flat wall: the wall must
+    read that force, pointing away from the wire."""
+    push_n = 1.0
+    arena = OperatingArena()
+    wire = Guidewire(length_m=0.12, n_segments=20, n_tip_segments=4, tip_shape="straight")
+    robot = FollowerRobot(wire_length_m=0.12, stroke_m=0.05, max_insertion_force_n=push_n)
+    arena.attach(robot)  # insertion along world +z; the tip starts 25 mm past the outlet
+    robot.attach(wire, robot.wire_attachment_site)
+    arena.mjcf_model.option.gravity = [0, 0, 0]
+    arena.mjcf_model.worldbody.add(
+        "geom", type="box", size=[0.02, 0.02, 0.002], pos=[0, 0, 0.037], contype=geom_groups.WALL_CONTYPE,
+        conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1], solimp=[0.99, 0.999, 0.0005, 0.5, 2])
+    physics = mjcf.Physics.from_mjcf_model(arena.mjcf_model)
+    wire.initialize_episode(physics, None)
+    is_wire = np.zeros(physics.model.ngeom, bool)
+    is_wire[physics.bind(wire.geoms).element_id] = True
+    for _ in range(1000):
+        robot.apply_action(physics, [1.0, 0.0])
+        physics.step()
+    contacts = cs_physics.wire_contacts(physics, is_wire)
+    assert contacts.count >= 1
+    assert contacts.total_n == pytest.approx(push_n, rel=0.05)
+    np.testing.assert_allclose(contacts.forces_n.sum(axis=0), [0, 0, push_n], atol=0.05 * push_n)
+    # Sub-millimetre penetration: the tip's end cap stops at the wall face (z = 0.035 m).
+    tip_end = physics.bind(wire.tip_site).xpos[2] + wire.radius_m
+    assert 0.035 - 0.0005 < tip_end < 0.035 + 0.0005
