@@ -39,8 +39,16 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
     from cathsim_dmc.paths import conf_root
 
     check_overrides(sys.argv[1:], argv_choices)
-    app = hydra.main(version_base="1.3", config_path=str(conf_root()), config_name=config_name)(task_function)
-    try:
-        return app()
-    except (ValueError, FileNotFoundError) as error:
-        fail(str(error))
+
+    def guarded(cfg):
+        # Hydra prints a traceback for exceptions from the task; a bad value in the
+        # config is the user's input, so it gets our one-line error (SystemExit passes).
+        try:
+            return task_function(cfg)
+        except (ValueError, FileNotFoundError) as error:
+            fail(str(error))
+
+    guarded.__name__ = getattr(task_function, "__name__", "app")
+    guarded.__module__ = getattr(task_function, "__module__", __name__)
+    app = hydra.main(version_base="1.3", config_path=str(conf_root()), config_name=config_name)(guarded)
+    return app()

@@ -10,16 +10,20 @@ import logging
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 log = logging.getLogger("cathsim-eval")
 
 
-def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=None, video_size=240):
+def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=None, video_size=240,
+                 show_progress: bool = True):
     """Roll out `policy` for `episodes` seeded episodes; returns per-episode summaries."""
     from cathsim_dmc.observables import CameraCache, video_frame
 
     cameras = CameraCache()
     summaries = []
+    max_steps = env.task.max_steps
+    progress = tqdm(total=episodes * max_steps, unit="step", desc="evaluating", disable=not show_progress)
     for episode in range(episodes):
         observation, info = env.reset(seed=seed + episode)
         recorder.start_episode(info["tip_position_m"])
@@ -31,6 +35,7 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=N
             total += reward
             forces.append(info["contact_force_n"])
             done = terminated or truncated
+            progress.update(max_steps - info["step"] + 1 if done else 1)
             if video_frames is not None and episode == 0:
                 video_frames.append(video_frame(env.physics, video_size, cache=cameras))
         summaries.append({
@@ -39,6 +44,7 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=N
             "final_distance_m": info["target_distance_m"], "mean_contact_force_n": float(np.mean(forces)),
         })
         log.info("episode %d: %s", episode, summaries[-1])
+    progress.close()
     return summaries
 
 

@@ -1,0 +1,129 @@
+"""cathsim-bench: speed of the navigation environments on this machine.
+
+    cathsim-bench                                   # bca/type1, obs internal and enn
+    cathsim-bench aortas=[type1,type2] obs=[internal] steps=300
+
+For each (aorta, observation preset), in a fresh process: env build time (construct +
+first reset, which compiles), reset time without recompilation, control steps/s and
+simulated seconds per wall second for a standard scenario (full insertion with a slow
+rotation from reset: the wire climbs the descending aorta and works into the arch), the
+time raw ``mujoco.mj_step`` needs for the same physics steps and controls (so the
+overhead of dm_control, observations and the task is visible), and peak RSS.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import platform
+import statistics
+import time
+
+import numpy as np
+
+log = logging.getLogger("cathsim-bench")
+
+SCENARIO_ACTION = (1.0, 0.2)  # insertion, rotation
+
+
+def measure(task: str, aorta: str, obs: str, steps: int) -> dict:
+    """One measurement, meant to run in its own process (for a clean peak RSS)."""
+    import resource
+
+    import mujoco
+
+    import cathsim_dmc  # noqa: F401  (GL backend)
+    from cathsim_dmc import tasks
+
+    start = time.perf_counter()
+    env = tasks.load(task, aorta, obs=obs, seed=0)
+    env.reset()
+    build_s = time.perf_counter() - start
+    resets = []
+    for _ in range(5):
+        start = time.perf_counter()
+        env.reset()
+        resets.append(time.perf_counter() - start)
+
+    env.reset()
+    physics = env.physics
+    model, data = physics.model.ptr, physics.data.ptr
+    initial = mujoco.MjData(model)
+    mujoco.mj_copyData(initial, model, data)
+    action = np.array(SCENARIO_ACTION)
+    controls, contacts = [], []
+    start = time.perf_counter()
+    for _ in range(steps):
+        timestep = env.step(action)
+        controls.append(data.ctrl.copy())
+        contacts.append(data.ncon)
+        if timestep.last():
+            break
+    wall = time.perf_counter() - start
+    done = len(controls)
+    n_sub = env.task.physics_steps_per_control_step
+
+    # Raw MuJoCo on the same model, state and controls.
+    raw = initial
+    start = time.perf_counter()
+    for ctrl in controls:
+        raw.ctrl[:] = ctrl
+        mujoco.mj_step(model, raw, n_sub)
+    raw_wall = time.perf_counter() - start
+    control_dt = env.control_timestep()
+    env.close()
+    return {
+        "aorta": aorta, "obs": obs, "steps": done,
+        "steps_per_s": done / wall, "realtime": done * control_dt / wall,
+        "raw_steps_per_s": done / raw_wall, "overhead": wall / raw_wall,
+        "mean_contacts": float(np.mean(contacts)), "build_s": build_s,
+        "reset_ms": 1e3 * statistics.median(resets),
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def _measure_in_subprocess(args):
+    return measure(*args)
+
+
+def run(cfg) -> list:
+    import os
+
+    from cathsim_dmc import tasks
+
+    for aorta in cfg.aortas:
+        tasks.validate(cfg.task, aorta)
+    for obs in cfg.obs:
+        tasks.validate(cfg.task, cfg.aortas[0], obs)
+    context = multiprocessing.get_context("spawn")
+    print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task}, "
+          f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}")
+    header = ("| aorta | obs | control steps/s | x real time | raw mj_step steps/s | overhead | contacts "
+              "| build s | reset ms | peak RSS MB |")
+    print(header)
+    print("|---" * (header.count("|") - 1) + "|")
+    rows = []
+    for aorta in cfg.aortas:
+        for obs in cfg.obs:
+            runs = []
+            for _ in range(cfg.repeats):
+                with context.Pool(1) as pool:
+                    runs.append(pool.apply(_measure_in_subprocess, ((cfg.task, aorta, obs, cfg.steps),)))
+            med = {k: (statistics.median(r[k] for r in runs) if isinstance(runs[0][k], float) else runs[0][k])
+                   for k in runs[0]}
+            rows.append(med)
+            print(f"| {aorta} | {obs} | {med['steps_per_s']:.1f} | {med['realtime']:.2f} | "
+                  f"{med['raw_steps_per_s']:.1f} | {med['overhead']:.2f} | {med['mean_contacts']:.0f} | "
+                  f"{med['build_s']:.2f} | {med['reset_ms']:.1f} | {med['peak_rss_mb']:.0f} |", flush=True)
+    return rows
+
+
+def main():
+    from cathsim_dmc.cli._common import run_hydra
+    from cathsim_dmc.tasks import TARGETS
+
+    run_hydra(run, "bench", {"task": lambda: TARGETS})
+
+
+if __name__ == "__main__":
+    main()
