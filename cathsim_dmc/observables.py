@@ -88,7 +88,8 @@ class CameraCache:
                 self._cameras[key] = Camera(physics, pixels, pixels, camera)
             except Exception as error:  # without a GL backend dm_control fails deep in GL set-up
                 raise RuntimeError(f"{_gl.missing_backend_message()} ({error})") from error
-        return self._cameras[key].render(**render_kwargs)
+        # A Camera renders into one buffer it reuses: copy, or every frame is the last.
+        return self._cameras[key].render(**render_kwargs).copy()
 
 
 class TopView:

@@ -3,6 +3,7 @@
 import subprocess
 import sys
 
+import imageio.v3 as iio
 import numpy as np
 
 from cathsim_dmc.trajectory import load_trajectories
@@ -23,7 +24,8 @@ def test_eval_writes_trajectories_and_video(tmp_path):
     # Full-speed insertion: the tip climbs the descending aorta.
     assert data["tip_position_m"][-1, 1] > data["start_tip_position_m"][0, 1] + 0.01
     gif = tmp_path / "run" / "video.gif"
-    assert gif.is_file() and gif.stat().st_size > 1000
+    # The wire moves every step, so the GIF keeps (nearly) one frame per step.
+    assert iio.improps(gif, index=None).n_images >= 10
 
 
 def test_unknown_choice_is_one_line_and_exit_2(tmp_path):
