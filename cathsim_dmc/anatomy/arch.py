@@ -24,6 +24,16 @@ from scipy import interpolate
 BRANCHES = ("bca", "lcca", "lsa")  # proximal (ascending side) to distal
 
 
+def arch_type_of(ratio: float) -> str:
+    """Clinical arch type from the BCA-origin distance below the arch top, in CCA diameters."""
+    return "I" if ratio < 1.0 else ("II" if ratio <= 2.0 else "III")
+
+
+def _distance_metric(points: np.ndarray) -> float:
+    path = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+    return path / float(np.linalg.norm(points[-1] - points[0]))
+
+
 @dataclasses.dataclass(frozen=True)
 class ArchParams:
     """Generator parameters. Lengths in metres, angles in degrees.
@@ -97,6 +107,13 @@ class ArchParams:
     lsa_angle_deg: float = 30.0
     # Length over which a branch turns from the arch normal to its heading.
     branch_bend_length_m: float = 0.020
+    # Bovine arch: the BCA and LCCA share one ostium (common origin) and run
+    # together along the arch normal for `bovine_trunk_length_m` past it before
+    # each turns to its own heading; `bca_lcca_gap_m` is then unused and the
+    # LSA keeps `lcca_lsa_gap_m` from the common ostium. The most frequent arch
+    # variant (~13% of people, Layton et al. 2006, AJNR 27:1541).
+    bovine: bool = False
+    bovine_trunk_length_m: float = 0.002
     # Branch length from its ostium to its closed end. The BCA trunk is 4-5 cm
     # (design brief); each branch must hold a site 3 cm in plus ~1.5 cm.
     bca_length_m: float = 0.045
@@ -155,7 +172,7 @@ class ArchParams:
     def validate(self) -> None:
         positive = [f.name for f in dataclasses.fields(self)
                     if f.name.endswith("_m") and f.name not in (
-                        "tortuosity_amplitude_m", "aneurysm_diameter_m")]
+                        "tortuosity_amplitude_m", "aneurysm_diameter_m", "bovine_trunk_length_m")]
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"ArchParams.{name} must be > 0, got {getattr(self, name)!r}.")
@@ -167,13 +184,79 @@ class ArchParams:
                              f"{narrowest * 1e3:.1f} mm branch; use at most {0.75 * narrowest:.4f}.")
         if self.refine_levels < 0 or self.relax_iterations < 0:
             raise ValueError("ArchParams.refine_levels and relax_iterations must be >= 0.")
+        if self.bovine_trunk_length_m < 0:
+            raise ValueError("ArchParams.bovine_trunk_length_m must be >= 0.")
         if self.arch_type not in ("I", "II", "III"):
             raise ValueError(f"ArchParams.arch_type must be one of I, II, III, got {self.arch_type!r}.")
 
 
-# Shipped presets: name -> parameters. Only type I is built for now.
+# Arch types. Madhwal et al. 2008 grade the arch by the vertical distance from
+# the top of the outer curvature down to the BCA origin, in CCA diameters:
+# type I < 1, type II 1-2, type III > 2.
+ARCH_TYPES = ("I", "II", "III")
+# Distance in CCA diameters used when an arch is built "as type X" with no
+# distance given (the middle of the class; type I keeps the 0.36 of `type1`).
+ARCH_TYPE_NOMINAL_RATIO = {"I": 0.36, "II": 1.5, "III": 2.5}
+# Ratio range the sampler draws from, 0.15 inside each class boundary so that
+# every draw is unambiguously of its class (type III is capped at 2.85: deeper
+# origins put the BCA on the vertical ascending aorta of this model).
+ARCH_TYPE_RATIO_RANGE = {"I": (0.15, 0.85), "II": (1.15, 1.85), "III": (2.15, 2.85)}
+# Arch height relative to a type I arch. Type II/III arches are elongated: the
+# arch rises above great vessels whose origins sit lower on the ascending side
+# (the arch elongates and "unfolds" with age, as the arch type rises). The
+# factors are a modelling choice.
+ARCH_TYPE_ELONGATION = {"I": 1.0, "II": 1.1, "III": 1.25}
+
+
+def with_arch_type(params: "ArchParams", arch_type: str, ratio: float | None = None,
+                   name: str | None = None) -> "ArchParams":
+    """`params` turned into an arch of `arch_type` ("I"/"II"/"III" or 1/2/3).
+
+    The BCA origin is put `ratio` CCA (= LCCA) diameters below the arch top
+    (default: `ARCH_TYPE_NOMINAL_RATIO`) and the arch height is scaled by
+    `ARCH_TYPE_ELONGATION` relative to the type of `params`.
+    """
+    arch_type = normalize_arch_type(arch_type)
+    ratio = ARCH_TYPE_NOMINAL_RATIO[arch_type] if ratio is None else float(ratio)
+    if arch_type_of(ratio) != arch_type:
+        raise ValueError(f"ratio={ratio} CCA diameters is not an arch of type {arch_type}.")
+    height = params.arch_height_m * ARCH_TYPE_ELONGATION[arch_type] / ARCH_TYPE_ELONGATION[params.arch_type]
+    return params.replace(name=params.name if name is None else name, arch_type=arch_type,
+                          bca_origin_drop_m=ratio * params.lcca_diameter_m, arch_height_m=height)
+
+
+def normalize_arch_type(value) -> str:
+    """"I"/"II"/"III", 1/2/3 or "1"/"2"/"3" -> "I"/"II"/"III"."""
+    names = {"1": "I", "2": "II", "3": "III", "I": "I", "II": "II", "III": "III"}
+    key = str(value).strip().upper()
+    if key not in names:
+        raise ValueError(f"arch_type={value!r} is not valid; choose one of 1, 2, 3 (or I, II, III).")
+    return names[key]
+
+
+_TYPE1 = ArchParams()
+
+# Shipped presets: name -> parameters (built into assets/<name> by scripts/build_assets.py).
 PRESETS: Dict[str, ArchParams] = {
-    "type1": ArchParams(),
+    "type1": _TYPE1,
+    "type2": with_arch_type(_TYPE1, "II", name="type2"),
+    "type3": with_arch_type(_TYPE1, "III", name="type3"),
+    # Type I with a fusiform aneurysm of the proximal descending aorta just
+    # distal to the LSA (the isthmus region, where most thoracic aortic
+    # aneurysms of the arch region sit): 50 mm, twice the ~25 mm adjacent aorta
+    # (surgical repair is advised from 55-60 mm; modelling choice).
+    "aneurysm": _TYPE1.replace(name="aneurysm", aneurysm_diameter_m=0.050, aneurysm_position=0.12,
+                               aneurysm_length_m=0.012),
+    # A flatter, wider arch (H/W 0.44 instead of 0.6) with straight branches:
+    # each branch keeps the direction of the arch normal at its origin (the
+    # headings below are those normals), so it does not bend at all.
+    "low_tortuosity": _TYPE1.replace(name="low_tortuosity", arch_height_m=0.028, arch_width_m=0.064,
+                                     bca_angle_deg=-22.3, lcca_angle_deg=-5.5, lsa_angle_deg=12.2),
+    # Bovine arch: BCA and LCCA from one common ostium, diverging more widely
+    # and bending sooner than in type1, so that the two lumens part about 1.5 cm
+    # above the ostium.
+    "bovine": _TYPE1.replace(name="bovine", bovine=True, bca_angle_deg=-40.0, lcca_angle_deg=20.0,
+                             branch_bend_length_m=0.015),
 }
 
 
@@ -207,6 +290,7 @@ class ArchModel:
     open_end_center: np.ndarray
     open_end_radius: float
     arch_top_y: float        # top of the outer curvature (nominal tube surface)
+    arch_s: Tuple[float, float] = (0.0, 0.0)   # arclength on `aorta` of the arch's ends (descending, ascending)
 
     @property
     def vessels(self) -> Tuple[Vessel, ...]:
@@ -223,8 +307,28 @@ class ArchModel:
 
     @property
     def arch_type_measured(self) -> str:
-        ratio = self.arch_type_distance_m / self.cca_diameter_m
-        return "I" if ratio < 1.0 else ("II" if ratio <= 2.0 else "III")
+        return arch_type_of(self.arch_type_distance_m / self.cca_diameter_m)
+
+    def tortuosity(self) -> Dict[str, float]:
+        """Distance metric (path length / chord, 1 = straight) of the vessel segments the wire travels.
+
+        ``arch``: the aortic centreline over the arch, from its descending end to
+        its ascending end (where the half-ellipse meets the straight tubes);
+        ``<branch>``: the branch centreline from its ostium to its site;
+        ``branches``: the mean of the three. Path/chord is the classic vessel
+        tortuosity "distance metric" (Bullitt et al. 2003, IEEE TMI 22:1163).
+        """
+        s = self.aorta.arclength
+        keep = (s >= self.arch_s[0]) & (s <= self.arch_s[1])
+        out = {"arch": _distance_metric(self.aorta.points[keep])}
+        for b in BRANCHES:
+            br = self.branches[b]
+            u = br.arclength
+            u0 = float(np.linalg.norm(self.ostia[b] - br.points[0]))
+            seg = br.points[(u >= u0) & (u <= u0 + self.params.site_depth_m)]
+            out[b] = _distance_metric(seg)
+        out["branches"] = float(np.mean([out[b] for b in BRANCHES]))
+        return out
 
 
 # ----------------------------------------------------------------------------
@@ -332,7 +436,13 @@ def build_arch(params: ArchParams) -> ArchModel:
         if drop(math.pi * 0.98) < 0:
             raise ValueError("ArchParams.bca_origin_drop_m is larger than the arch allows.")
         theta = {"bca": _bisect(drop, theta_top, math.pi * 0.98)}
+        if p.bovine:
+            theta["lcca"] = theta["bca"]
         for prev, nxt, gap in (("bca", "lcca", p.bca_lcca_gap_m), ("lcca", "lsa", p.lcca_lsa_gap_m)):
+            if nxt in theta:
+                continue
+            if p.bovine:
+                prev = "bca"   # the LSA is spaced from the common (BCA-sized) ostium
             want = r_branch[prev] + gap + r_branch[nxt]
             o_prev = ostium(theta[prev])
             f = lambda t: np.linalg.norm(ostium(t) - o_prev) - want
@@ -385,6 +495,7 @@ def build_arch(params: ArchParams) -> ArchModel:
             2 * math.pi * (s - seg_lo) / p.tortuosity_wavelength_m + phase)
         s_new = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
         s_br = {b: float(np.interp(v, s, s_new)) for b, v in s_br.items()}
+        s_arch0, s_arch1 = (float(np.interp(v, s, s_new)) for v in (s_arch0, s_arch1))
         s = s_new
     aorta = Vessel("aorta", points, radius)
 
@@ -402,7 +513,8 @@ def build_arch(params: ArchParams) -> ArchModel:
         d1 = np.array([math.sin(ang), math.cos(ang), 0.0])
         total = R_a + p.branch_length_m(b)
         u = np.arange(0.0, total + 1e-12, _SAMPLE_M / 2)
-        w = _smoothstep((u - R_a) / p.branch_bend_length_m)[:, None]
+        bend_start = R_a + (p.bovine_trunk_length_m if p.bovine and b in ("bca", "lcca") else 0.0)
+        w = _smoothstep((u - bend_start) / p.branch_bend_length_m)[:, None]
         dirs = _unit((1 - w) * n0 + w * d1)
         steps = np.diff(u)[:, None] * 0.5 * (dirs[1:] + dirs[:-1])
         bpts = A + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
@@ -423,7 +535,8 @@ def build_arch(params: ArchParams) -> ArchModel:
         params=p, aorta=aorta, branches=branches, aorta_open_s=s_open,
         branch_origin_s=s_br, ostia=ostia, sites=sites,
         entry_position=entry, entry_direction=np.array([0.0, 1.0, 0.0]),
-        open_end_center=open_c, open_end_radius=r_open, arch_top_y=top_y)
+        open_end_center=open_c, open_end_radius=r_open, arch_top_y=top_y,
+        arch_s=(float(s_arch0), float(s_arch1)))
 
 
 def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,

@@ -8,7 +8,10 @@ An asset folder (format_version 1) holds:
   distance and CCA diameter measured on the geometry, and the generator
   parameters (so the build is reproducible). Extra keys: ``open_end`` (the
   plane disc where the wire enters; the visual mesh is closed there but no
-  collision piece covers it) and ``counts``.
+  collision piece covers it), ``counts``, ``ostia`` (where each branch leaves
+  the aorta; the validation samples densely around them), and for generated
+  arches ``arch_type`` (measured class), ``tortuosity`` (path/chord of the arch
+  and of each branch's first 3 cm) and ``max_aortic_diameter_m``.
 - ``visual.stl``: binary STL of the closed lumen surface, metres, outward normals.
 - ``collision.npz``: ``vertices`` float32 (M, 3) and ``hull_offsets`` int32
   (H + 1,); hull i is ``vertices[hull_offsets[i]:hull_offsets[i + 1]]``, a
@@ -321,6 +324,12 @@ class BuildReport:
     cca_diameter_m: float
     arch_type: str
     path_length_m: Dict[str, float]
+    tortuosity: Dict[str, float] = dataclasses.field(default_factory=dict)
+    max_aortic_diameter_m: float = 0.0
+
+    @property
+    def arch_type_ratio(self) -> float:
+        return self.arch_type_distance_m / self.cca_diameter_m
 
 
 def _wall_distance(vertices, faces, points):
@@ -350,6 +359,8 @@ def build_asset(params, folder) -> BuildReport:
         centerlines[b] = (pts, _wall_distance(lumen.vertices, wall, pts))
         lengths[b] = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
     p = model.params
+    tortuosity = model.tortuosity()
+    max_diameter = 2.0 * float(model.aorta.radius.max())
     if model.arch_type_measured != p.arch_type:
         raise ValueError(
             f"ArchParams '{p.name}' is labelled arch type {p.arch_type} but its BCA origin lies "
@@ -362,6 +373,12 @@ def build_asset(params, folder) -> BuildReport:
         f"{p.branch_length_m('lcca') * 100:.1f}/{p.branch_length_m('lsa') * 100:.1f} cm past their ostia. "
         f"Lumen: smooth union of tapered tubes ({p.blend_radius_m * 1e3:.0f} mm blend); "
         f"wall: one {p.wall_thickness_m * 1e3:.0f} mm prism per lumen triangle.")
+    if p.bovine:
+        description += " Bovine arch: the BCA and LCCA share one ostium."
+    if p.aneurysm_diameter_m > 0:
+        description += f" Aortic aneurysm of {max_diameter * 1e3:.0f} mm diameter."
+    if p.tortuosity_amplitude_m > 0:
+        description += f" Tortuous descending aorta ({p.tortuosity_amplitude_m * 1e3:.0f} mm lateral amplitude)."
     write_asset(
         folder, name=p.name, description=description,
         vertices=lumen.vertices, faces=lumen.faces, hulls=prisms,
@@ -373,9 +390,13 @@ def build_asset(params, folder) -> BuildReport:
         extra={"open_end": {"center": _rounded(model.open_end_center),
                             "normal": [0.0, -1.0, 0.0],
                             "radius_m": _rounded(model.open_end_radius)},
-               "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))}})
+               "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
+               "arch_type": model.arch_type_measured,
+               "ostia": {b: _rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
+               "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
+               "max_aortic_diameter_m": _rounded(max_diameter)})
     return BuildReport(
         path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
         seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,
         cca_diameter_m=model.cca_diameter_m, arch_type=model.arch_type_measured,
-        path_length_m=lengths)
+        path_length_m=lengths, tortuosity=tortuosity, max_aortic_diameter_m=max_diameter)

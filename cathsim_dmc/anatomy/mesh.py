@@ -206,8 +206,10 @@ def build_lumen(model: ArchModel, grid: SDFGrid | None = None) -> Lumen:
     v, f = v[used], remap[f]
     v, f = _clean_rim(v, f, c[[0, 2]], y_cut, p.edge_length_m)
     y_band = y_cut + 3 * p.edge_length_m
+    v, f = collapse_short_edges(v, f, grid, SHORT_EDGE_FRACTION * p.edge_length_m, frozen=v[:, 1] < y_band)
     v, f = _refine_curved(v, f, grid, p.max_dihedral_deg, p.refine_levels, y_band)
     v = _relax(v, f, grid, frozen=v[:, 1] < y_band, iterations=p.relax_iterations)
+    v, f = fix_slivers(v, f, grid, frozen=v[:, 1] < y_band)
     v, f = _close_cap(v, f, y_cut)
     v, f = _canonical(v, f)
     cap = _cap_mask(v, f, y_cut)
@@ -341,6 +343,168 @@ def _relax(v, f, grid: SDFGrid, frozen: np.ndarray, iterations: int = 4):
             break        # a triangle would fold: keep the last good state
         v = candidate
     return v
+
+
+SLIVER_ANGLE_DEG = 12.0
+# Edges of the raw level-set mesh shorter than this fraction of the requested
+# edge length are collapsed. Measured: healthy meshes have no edge below
+# ~0.2x; in about one build of six the mesher snaps a cluster of vertices
+# together at the closed end of a narrow branch (edges of 0.005-0.03 mm), and
+# refining around that cluster folds triangles over.
+SHORT_EDGE_FRACTION = 0.1
+
+
+def collapse_short_edges(v, f, grid: SDFGrid, min_length: float, frozen: np.ndarray | None = None,
+                         max_rounds: int = 1000):
+    """Collapse every edge shorter than `min_length` (shortest first) into its projected midpoint.
+
+    A collapse is skipped if it would pinch the surface (link condition) or turn
+    a triangle against the surface normal. Meshes without short edges are
+    returned unchanged.
+    """
+    frozen = np.zeros(len(v), dtype=bool) if frozen is None else np.asarray(frozen, dtype=bool).copy()
+    accept = lambda vv, touched, before: len(touched) == 0 or _faces_follow_surface(vv, touched, grid, min_cos=0.2)
+    skip = set()
+    for _ in range(max_rounds):
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        length = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+        short = np.nonzero((length < min_length) & ~np.any(frozen[e], axis=1))[0]
+        short = [i for i in short[np.argsort(length[short], kind="stable")] if tuple(e[i]) not in skip]
+        if not short:
+            break
+        for i in short:
+            a, b = (int(x) for x in e[i])
+            res = _try_collapse(v, f, a, b, grid, frozen, None, None, accept=accept)
+            if res is not None:
+                v, f, frozen = res
+                skip = set()
+                break
+            skip.add((a, b))
+        else:
+            break
+    return v, f
+
+
+def fix_slivers(v, f, grid: SDFGrid, frozen: np.ndarray | None = None, min_angle_deg: float = SLIVER_ANGLE_DEG,
+                max_rounds: int = 500):
+    """Remove triangles with an angle below `min_angle_deg` (their prisms would be degenerate).
+
+    The mesher and the relaxation occasionally pile a few vertices together
+    (e.g. at the pole of a branch's closed end). A needle (one short edge) is
+    collapsed to its midpoint projected onto the surface; a cap (one angle near
+    180 deg) has its longest edge flipped. A change is kept only if every
+    touched triangle stays aligned with the surface and the worst angle around
+    it improves. Meshes without slivers are returned unchanged. Vertices in
+    `frozen` are never moved or removed.
+    """
+    frozen = np.zeros(len(v), dtype=bool) if frozen is None else np.asarray(frozen, dtype=bool).copy()
+    v, f = v.copy(), f.copy()
+
+    def angles(vv, ff):
+        tri = vv[ff]
+        out = []
+        for c in range(3):
+            e1 = tri[:, (c + 1) % 3] - tri[:, c]
+            e2 = tri[:, (c + 2) % 3] - tri[:, c]
+            cosang = np.sum(e1 * e2, 1) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+            out.append(np.degrees(np.arccos(np.clip(cosang, -1, 1))))
+        return np.stack(out, axis=1)
+
+    def aligned(vv, ff):
+        return len(ff) == 0 or _faces_follow_surface(vv, ff, grid, min_cos=0.3)
+
+    for _ in range(max_rounds):
+        ang = angles(v, f)
+        bad = np.nonzero(ang.min(axis=1) < min_angle_deg)[0]
+        bad = bad[~np.any(frozen[f[bad]], axis=1)]
+        if not len(bad):
+            break
+        changed = False
+        for t in bad[np.argsort(ang[bad].min(axis=1), kind="stable")]:
+            tri = f[t]
+            big = int(np.argmax(ang[t]))
+            if ang[t, big] > 120.0:
+                # Cap: flip the edge opposite the big angle.
+                a, b = tri[(big + 1) % 3], tri[(big + 2) % 3]
+                changed = _try_flip(v, f, a, b, angles, aligned)
+            else:
+                # Needle: collapse the shortest edge (opposite the smallest angle).
+                small = int(np.argmin(ang[t]))
+                a, b = tri[(small + 1) % 3], tri[(small + 2) % 3]
+                res = _try_collapse(v, f, a, b, grid, frozen, angles, aligned)
+                if res is not None:
+                    v, f, frozen = res
+                    changed = True
+            if changed:
+                break
+        if not changed:
+            break
+    return v, f
+
+
+def _better(after: np.ndarray, before: np.ndarray) -> bool:
+    """Fewer sliver angles, or as many and a larger smallest angle."""
+    na, nb = int(np.sum(after < SLIVER_ANGLE_DEG)), int(np.sum(before < SLIVER_ANGLE_DEG))
+    return na < nb or (na == nb and after.min() > before.min())
+
+
+def _try_flip(v, f, a, b, angles, aligned) -> bool:
+    """Flip edge (a, b) in place if that improves the worst angle of its two faces."""
+    has = np.nonzero(np.sum((f == a) | (f == b), axis=1) == 2)[0]
+    if len(has) != 2:
+        return False
+    opp = [int(np.setdiff1d(f[i], [a, b])[0]) for i in has]
+    c, d = opp
+    if c == d or np.any(np.sum((f == c) | (f == d), axis=1) == 2):
+        return False        # the flipped edge exists already
+    # Keep orientation: face 0 goes a -> b (or b -> a); build the two new faces accordingly.
+    f0 = list(f[has[0]])
+    i = f0.index(a)
+    forward = f0[(i + 1) % 3] == b          # face 0 = (a, b, c) in order
+    new = np.array([[a, d, c], [b, c, d]]) if forward else np.array([[a, c, d], [b, d, c]])
+    if not _better(angles(v, new), angles(v, f[has])) or not aligned(v, new):
+        return False
+    f[has] = new
+    return True
+
+
+def _try_collapse(v, f, a, b, grid, frozen, angles, aligned, accept=None):
+    """Collapse edge (a, b) into its projected midpoint; returns new (v, f, frozen) or None.
+
+    Default acceptance: the touched triangles stay aligned with the surface
+    and their angles improve (`_better`); `accept(v, touched_faces, before)`
+    replaces that test.
+    """
+    if frozen[a] or frozen[b]:
+        return None
+    shared = np.nonzero(np.sum((f == a) | (f == b), axis=1) == 2)[0]
+    if len(shared) != 2:
+        return None
+    nb = lambda x: set(f[np.any(f == x, axis=1)].ravel().tolist()) - {x}
+    if nb(a) & nb(b) != set(f[shared].ravel().tolist()) - {a, b}:
+        return None          # link condition: the collapse would pinch the surface
+    ring = np.nonzero(np.any((f == a) | (f == b), axis=1))[0]
+    ring = np.setdiff1d(ring, shared)
+    m = _project(0.5 * (v[a] + v[b])[None], grid)[0]
+    v2 = v.copy()
+    v2[a] = m
+    f2 = f.copy()
+    f2[f2 == b] = a
+    touched = f2[ring]
+    if accept is not None:
+        if not accept(v2, touched, None):
+            return None
+    else:
+        before = angles(v, f[np.concatenate([ring, shared])])
+        if not _better(angles(v2, touched), before) or not aligned(v2, touched):
+            return None
+    f2 = np.delete(f2, shared, axis=0)
+    # Drop vertex b (renumber).
+    keep = np.ones(len(v2), dtype=bool)
+    keep[b] = False
+    remap = np.cumsum(keep) - 1
+    return v2[keep], remap[f2], frozen[keep]
 
 
 def _sdf_gradient(points, grid: SDFGrid):
