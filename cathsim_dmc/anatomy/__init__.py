@@ -3,15 +3,30 @@
     from cathsim_dmc.anatomy import PRESETS, build_asset, load_asset
     report = build_asset(PRESETS["type1"], "assets/type1")
     asset = load_asset("assets/type1")
+
+    from cathsim_dmc.anatomy import generated_asset, sample_arch_params
+    folder = generated_asset(sample_arch_params(7))      # built once, then cached
+
+    from cathsim_dmc.anatomy import validate_asset
+    print(validate_asset("assets/type2").summary())
 """
 
-from cathsim_dmc.anatomy.arch import BRANCHES, PRESETS, ArchModel, ArchParams, Vessel, build_arch, path_to_site
+from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RATIO, ARCH_TYPE_RATIO_RANGE,
+                                      ARCH_TYPES, BRANCHES, PRESETS, ArchModel, ArchParams, Vessel, arch_type_of,
+                                      build_arch, normalize_arch_type, path_to_site, with_arch_type)
 from cathsim_dmc.anatomy.asset import (FORMAT_VERSION, AortaAsset, BuildReport, Centerline, build_asset,
                                        load_asset, write_asset)
+from cathsim_dmc.anatomy.generate import (CACHE_ENV, arch_params, cache_root, generated_asset, params_hash,
+                                          sample_arch_params)
 from cathsim_dmc.anatomy.mesh import Lumen, build_lumen, extrude_prisms, signed_distance
+from cathsim_dmc.anatomy.validate import ValidationReport, validate_asset
 
 __all__ = [
-    "BRANCHES", "PRESETS", "ArchModel", "ArchParams", "Vessel", "build_arch", "path_to_site",
+    "ARCH_TYPE_ELONGATION", "ARCH_TYPE_NOMINAL_RATIO", "ARCH_TYPE_RATIO_RANGE", "ARCH_TYPES", "BRANCHES",
+    "PRESETS", "ArchModel", "ArchParams", "Vessel", "arch_type_of", "build_arch", "normalize_arch_type",
+    "path_to_site", "with_arch_type",
     "FORMAT_VERSION", "AortaAsset", "BuildReport", "Centerline", "build_asset", "load_asset", "write_asset",
+    "CACHE_ENV", "arch_params", "cache_root", "generated_asset", "params_hash", "sample_arch_params",
     "Lumen", "build_lumen", "extrude_prisms", "signed_distance",
+    "ValidationReport", "validate_asset",
 ]
