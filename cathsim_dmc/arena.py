@@ -11,12 +11,25 @@ import numpy as np
 from dm_control import composer, mjcf
 
 PHYSICS_TIMESTEP_S = 0.002
+BLOOD_DENSITY_KG_M3 = 1055.0  # whole blood (Kenner 1989)
+BLOOD_VISCOSITY_PA_S = 0.0035  # whole blood at high shear, 3.5-4 mPa s
 
 
 class OperatingArena(composer.Arena):
     """Empty scene with lights, a top (AP) and a side (lateral) camera."""
 
-    def _build(self, name: str = "operating_room", timestep_s: float = PHYSICS_TIMESTEP_S):
+    def _build(self, name: str = "operating_room", timestep_s: float = PHYSICS_TIMESTEP_S,
+               blood_drag: bool = False):
+        """Builds the scene.
+
+        Args:
+          name: model name.
+          timestep_s: physics timestep in seconds.
+          blood_drag: apply MuJoCo's fluid forces for blood (density and viscosity
+            above) to every moving body. At the wire's speeds (tens of mm/s) the drag
+            is small against its stiffness and wall contact (the tip path after 30 full
+            insertion steps moved by < 0.01 mm); off by default.
+        """
         super()._build(name=name)
         root = self._mjcf_root
         root.compiler.angle = "radian"
@@ -27,6 +40,11 @@ class OperatingArena(composer.Arena):
             timestep=timestep_s, integrator="implicitfast", cone="elliptic",
             gravity=[0, 0, -9.81],
         )
+        if blood_drag:
+            # implicitfast would differentiate the fluid forces every step (measured 9x
+            # slower); Euler keeps joint damping implicit and costs the same as before.
+            root.option.set_attributes(density=BLOOD_DENSITY_KG_M3, viscosity=BLOOD_VISCOSITY_PA_S,
+                                       integrator="Euler")
         # Room for hundreds of wall contacts (the default 24 MB overflows in a jammed wire).
         root.size.memory = "128M"
         root.visual.quality.shadowsize = 0  # no shadow maps: they double software-GL cost

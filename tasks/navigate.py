@@ -56,6 +56,7 @@ class Navigate(composer.Task):
         start_insertion_jitter_m: float = 0.002,
         start_rotation_rad: float = np.pi,
         start_rotation_jitter_rad: float = 0.3,
+        blood_drag: bool = False,
     ):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
@@ -72,7 +73,7 @@ class Navigate(composer.Task):
         self._rotation_jitter_rad = float(start_rotation_jitter_rad)
         self._settings = observations
 
-        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s)
+        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag)
         self._arena.attach(aorta)
         self._arena.frame_cameras(aorta.bounds_m)
         robot_frame = self._arena.attach(robot)

@@ -83,3 +83,18 @@ def test_contact_force_reads_the_push_against_a_wall():
     # Sub-millimetre penetration: the tip's end cap stops at the wall face (z = 0.035 m).
     tip_end = physics.bind(wire.tip_site).xpos[2] + wire.radius_m
     assert 0.035 - 0.0005 < tip_end < 0.035 + 0.0005
+
+
+def test_blood_drag_option_resists_wire_motion():
+    from cathsim_dmc import tasks
+
+    drag = {}
+    for blood in (False, True):
+        env = tasks.load("bca", "type1", seed=0, blood_drag=blood)
+        env.reset()
+        env.step(np.array([1.0, 0.5]))
+        data = env.physics.data
+        # Fluid forces oppose the motion of the moving wire and carriage: negative power.
+        drag[blood] = float(data.qfrc_fluid @ data.qvel)
+        assert env.physics.model.opt.density == (1055.0 if blood else 0.0)
+    assert drag[False] == 0.0 and drag[True] < 0.0
