@@ -67,10 +67,11 @@ def arch_params(params: Union[ArchParams, Mapping, str]) -> ArchParams:
     typed = {}
     for key, value in values.items():
         kind = type(getattr(base, key))
+        if key == "arch_type":
+            typed[key] = normalize_arch_type(value)
+            continue
         try:
-            if key == "arch_type":
-                typed[key] = normalize_arch_type(value)
-            elif kind is bool:
+            if kind is bool:
                 if isinstance(value, (bool, np.bool_)):
                     typed[key] = bool(value)
                 elif str(value).lower() in ("true", "false"):
