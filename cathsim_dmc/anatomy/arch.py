@@ -109,9 +109,10 @@ class ArchParams:
     branch_bend_length_m: float = 0.020
     # Bovine arch: the BCA and LCCA share one ostium (common origin) and run
     # together along the arch normal for `bovine_trunk_length_m` past it before
-    # each turns to its own heading; `bca_lcca_gap_m` is then unused and the
-    # LSA keeps `lcca_lsa_gap_m` from the common ostium. The most frequent arch
-    # variant (~13% of people, Layton et al. 2006, AJNR 27:1541).
+    # each turns to its own heading; the LSA stays where it would be in a
+    # normal arch (gaps `bca_lcca_gap_m`, `lcca_lsa_gap_m` to a virtual LCCA).
+    # The most common variant of arch branching (Layton et al. 2006, AJNR
+    # 27:1541, who also explain why "bovine" is a misnomer).
     bovine: bool = False
     bovine_trunk_length_m: float = 0.002
     # Branch length from its ostium to its closed end. The BCA trunk is 4-5 cm
@@ -436,19 +437,18 @@ def build_arch(params: ArchParams) -> ArchModel:
         if drop(math.pi * 0.98) < 0:
             raise ValueError("ArchParams.bca_origin_drop_m is larger than the arch allows.")
         theta = {"bca": _bisect(drop, theta_top, math.pi * 0.98)}
-        if p.bovine:
-            theta["lcca"] = theta["bca"]
+        # LCCA then LSA, each spaced from its neighbour by the given wall-to-wall gap.
         for prev, nxt, gap in (("bca", "lcca", p.bca_lcca_gap_m), ("lcca", "lsa", p.lcca_lsa_gap_m)):
-            if nxt in theta:
-                continue
-            if p.bovine:
-                prev = "bca"   # the LSA is spaced from the common (BCA-sized) ostium
             want = r_branch[prev] + gap + r_branch[nxt]
             o_prev = ostium(theta[prev])
             f = lambda t: np.linalg.norm(ostium(t) - o_prev) - want
             if f(0.05) < 0:
                 raise ValueError(f"No room on the arch for the {nxt.upper()} with the given gaps.")
             theta[nxt] = _bisect(f, 0.05, theta[prev])
+        if p.bovine:
+            # The LCCA's origin moves onto the BCA's; the LSA stays where it
+            # would be in a normal arch.
+            theta["lcca"] = theta["bca"]
         return theta
 
     def radius_profile(theta):
