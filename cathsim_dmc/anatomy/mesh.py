@@ -261,7 +261,8 @@ def _project(points, grid: SDFGrid, iterations=5):
     return x
 
 
-def _refine_curved(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_min: float):
+def _refine_curved(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_min: float,
+                   frozen=None):
     """Split triangles around creases sharper than `max_dihedral_deg` (red-green refinement).
 
     Uniform meshing at ~3 mm leaves narrow branches with 8-9 facets and folds
@@ -281,6 +282,8 @@ def _refine_curved(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_
         marked = np.zeros(len(f), dtype=bool)
         marked[edge_faces[sharp].ravel()] = True
         marked &= v[f].min(axis=1)[:, 1] > y_min
+        if frozen is not None:        # callable: vertices -> bool mask of vertices to leave alone
+            marked &= ~np.any(frozen(v)[f], axis=1)
         if not marked.any():
             break
         split = np.zeros(len(edges), dtype=bool)
@@ -537,7 +540,7 @@ def _face_normals(v, f):
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def _clean_rim(v, f, axis_xz, y_cut, edge, iterations=20):
+def _clean_rim(v, f, axis_xz, y_cut, edge, iterations=20, radius=None):
     """Relax the triangles the plane cut leaves at the rim of the open end.
 
     Cutting triangles close to their vertices leaves slivers along the rim. Near
@@ -551,7 +554,10 @@ def _clean_rim(v, f, axis_xz, y_cut, edge, iterations=20):
     v, f = _collapse_short_rim_edges(v.copy(), f.copy(), y_cut, 0.35 * edge)
     rim_e = _boundary_edges(f)
     rim = np.unique(rim_e)
-    band = np.nonzero(v[:, 1] < y_cut + 2.5 * edge)[0]
+    in_reach = v[:, 1] < y_cut + 2.5 * edge
+    if radius is not None:      # only around the open end (imported meshes may reach below it elsewhere)
+        in_reach &= np.hypot(v[:, 0] - axis_xz[0], v[:, 2] - axis_xz[1]) < radius
+    band = np.nonzero(in_reach)[0]
     inner = np.setdiff1d(band, rim)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = np.unique(np.sort(e, axis=1), axis=0)

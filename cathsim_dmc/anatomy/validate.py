@@ -211,30 +211,35 @@ def cap_faces(asset: AortaAsset, tol: float = 2e-6) -> np.ndarray:
 
 
 def estimate_ostia(asset: AortaAsset) -> Dict[str, np.ndarray]:
-    """Ostia from ``meta["ostia"]``, else from the centerlines.
-
-    Estimate per site: walking from the site back towards the entry, the first
-    centerline point whose lumen radius exceeds 1.4x the radius near the site
-    (the branch opens into its parent), and every point where the centerline
-    parts from the centerline of another site (a bifurcation).
-    """
+    """Ostia from ``meta["ostia"]``, else estimated from the centerlines (`ostia_from_centerlines`)."""
     meta = asset.meta.get("ostia")
     if meta:
         return {k: np.asarray(v, dtype=np.float64) for k, v in meta.items()}
+    return ostia_from_centerlines({k: (c.points, c.radius) for k, c in asset.centerlines.items()})
+
+
+def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
+    """Junction points estimated from entry->site centerlines {name: (points, radius)}.
+
+    Per site: walking from the site back towards the entry, the last centerline
+    point whose lumen radius exceeds 1.4x the radius near the site (the branch
+    opens into its parent), and the point where its centerline parts from the
+    centerline of each other site (a bifurcation).
+    """
     out = {}
-    names = sorted(asset.centerlines)
+    names = sorted(centerlines)
     for k in names:
-        pts, rad = (np.asarray(a, dtype=np.float64) for a in asset.centerlines[k])
+        pts, rad = (np.asarray(a, dtype=np.float64) for a in centerlines[k])
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
         tail = s >= s[-1] - 0.010
         r_branch = float(np.median(rad[tail]))
         wide = np.nonzero(rad > 1.4 * r_branch)[0]
         if len(wide):
-            out[f"{k}"] = pts[wide[-1]]
+            out[k] = pts[wide[-1]]
         for j in names:
             if j == k:
                 continue
-            other = np.asarray(asset.centerlines[j].points, dtype=np.float64)
+            other = np.asarray(centerlines[j][0], dtype=np.float64)
             d, _ = spatial.cKDTree(other).query(pts)
             apart = np.nonzero(d > 0.5 * np.maximum(rad, 1e-4))[0]
             if len(apart) and apart[0] > 0:
