@@ -7,23 +7,34 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate
 
 TARGETS = ("bca", "lcca")
+CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
 ALL_TASKS = tuple((target, aorta) for aorta in available_aortas() for target in TARGETS)
 
 
+def aorta_choices() -> tuple:
+    """What `aorta=` accepts by name: every shipped aorta and `custom`."""
+    return available_aortas() + (CUSTOM_AORTA,)
+
+
 def validate(task: str, aorta: str, obs: str = "internal") -> None:
-    """Raise ValueError naming the valid choices if any name is unknown."""
+    """Raise ValueError naming the valid choices if any name is unknown.
+
+    `aorta` may also be the path of an asset folder (for example an imported mesh).
+    """
     if task not in TARGETS:
         raise ValueError(f"task={task!r} is not a navigation target; choose one of {list(TARGETS)}")
-    aortas = available_aortas()
-    if aorta not in aortas:
-        raise ValueError(f"aorta={aorta!r} is not a shipped aorta; choose one of {list(aortas)}")
+    if aorta not in aorta_choices() and not (Path(aorta) / "meta.json").is_file():
+        raise ValueError(
+            f"aorta={aorta!r} is not a shipped aorta or an asset folder; choose one of {list(aorta_choices())}")
     if obs not in OBSERVATION_PRESETS:
         raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
 
@@ -35,11 +46,22 @@ def build_task(
     guidewire: dict | None = None,
     robot: dict | None = None,
     aorta_options: dict | None = None,
+    aorta_params: dict | None = None,
     image_size: int | None = None,
     **task_kwargs,
 ) -> Navigate:
-    """The Navigate task for a (target, aorta) pair with entity parameters overridden."""
+    """The Navigate task for a (target, aorta) pair with entity parameters overridden.
+
+    `aorta="custom"` generates an aorta from `aorta_params` (generator fields of
+    `cathsim_dmc.anatomy.ArchParams`, optionally `preset`), cached after its first build.
+    """
     validate(task, aorta, obs)
+    if aorta == CUSTOM_AORTA:
+        from cathsim_dmc.anatomy import generated_asset
+
+        aorta = generated_asset(dict(aorta_params or {}))
+    elif aorta_params:
+        raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
     settings = observation_settings(obs, **({"image_size": image_size} if image_size else {}))
     wire = Guidewire(**(guidewire or {}))
     follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **(robot or {}))
@@ -54,4 +76,4 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
     return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
 
 
-__all__ = ["ALL_TASKS", "TARGETS", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "load", "validate"]
+__all__ = ["ALL_TASKS", "CUSTOM_AORTA", "TARGETS", "aorta_choices", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "load", "validate"]

@@ -77,3 +77,21 @@ def test_divergence_truncates_and_next_reset_works():
     assert np.all(np.isfinite(env.physics.data.qpos))
     timestep = env.step(np.array([1.0, 0.0]))
     assert timestep.mid() and np.isfinite(timestep.reward)
+
+
+def test_custom_aorta_is_generated_and_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("CATHSIM_DMC_CACHE", str(tmp_path))
+    params = {"preset": "type2", "arch_width_m": 0.065}
+    env = tasks.load("lcca", "custom", aorta_params=params, seed=0)
+    env.reset()
+    timestep = env.step(np.array([1.0, 0.0]))
+    assert timestep.mid() and np.isfinite(timestep.reward)
+    folders = list((tmp_path / "aortas").iterdir())
+    assert len(folders) == 1 and (folders[0] / "meta.json").is_file()
+    # Second use: same folder, no rebuild.
+    before = (folders[0] / "meta.json").stat().st_mtime_ns
+    tasks.load("bca", "custom", aorta_params=params)
+    assert [p.name for p in (tmp_path / "aortas").iterdir()] == [folders[0].name]
+    assert (folders[0] / "meta.json").stat().st_mtime_ns == before
+    with pytest.raises(ValueError, match="only used with aorta='custom'"):
+        tasks.load("bca", "type1", aorta_params=params)

@@ -50,13 +50,16 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=N
 
 def evaluate(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
 
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import make_policy
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=cfg.obs,
+    params = cfg.aorta.get("params")
+    extra = {"aorta_params": OmegaConf.to_container(params)} if params is not None else {}
+    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=cfg.obs, **extra,
                      delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward,
                      dense=cfg.task.dense, max_steps=cfg.task.max_steps)
     policy = make_policy(cfg.policy, seed=cfg.seed)
@@ -82,13 +85,12 @@ def evaluate(cfg) -> dict:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.paths import available_aortas
     from cathsim_dmc.policies import BUILTIN_POLICIES
     from cathsim_dmc.observables import OBSERVATION_PRESETS
-    from cathsim_dmc.tasks import TARGETS
+    from cathsim_dmc.tasks import TARGETS, aorta_choices
 
     run_hydra(evaluate, "eval", {
-        "task": lambda: TARGETS, "aorta": available_aortas,
+        "task": lambda: TARGETS, "aorta": aorta_choices,
         "policy": lambda: sorted(BUILTIN_POLICIES), "obs": lambda: sorted(OBSERVATION_PRESETS),
     })
 
