@@ -213,11 +213,15 @@ def cmd_list(args: List[str]) -> int:
 
     if args:
         fail("list takes no arguments")
+    print(f"{'name':<16} {'type':<5} {'arch-type distance':<22} {'tortuosity':<11} {'pieces':>6}")
     for name in available_aortas():
         a = load_asset(resolve_asset(name))
-        ratio = (a.arch_type_distance_m or 0) / (a.cca_diameter_m or 1)
-        print(f"{name:<16} type {a.meta.get('arch_type', '?'):<4} {ratio:.2f} CCA  {a.hull_count} pieces  "
-              f"{a.meta.get('description', '')[:60]}")
+        dist = "-"
+        if a.arch_type_distance_m is not None and a.cca_diameter_m:
+            dist = f"{a.arch_type_distance_m * 1e3:.1f} mm = {a.arch_type_distance_m / a.cca_diameter_m:.2f} CCA"
+        tort = a.meta.get("tortuosity", {}).get("arch")
+        print(f"{name:<16} {a.meta.get('arch_type', '?'):<5} {dist:<22} {'-' if tort is None else f'{tort:.3f}':<11} "
+              f"{a.hull_count:>6}")
     return 0
 
 
