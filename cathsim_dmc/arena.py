@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer, mjcf
 
-PHYSICS_TIMESTEP_S = 0.002
+PHYSICS_TIMESTEP_S = 0.01  # the guidewire's default; tasks take the wire's own
 BLOOD_DENSITY_KG_M3 = 1055.0  # whole blood (Kenner 1989)
 BLOOD_VISCOSITY_PA_S = 0.0035  # whole blood at high shear, 3.5-4 mPa s
 
