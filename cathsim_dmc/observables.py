@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from dm_control import composer
+from dm_control.composer.observation import observable
 from dm_control.mujoco.wrapper.core import MjvOption
 
 from cathsim_dmc import _gl, geom_groups
@@ -39,6 +41,22 @@ OBSERVATION_PRESETS = {
     "internal_pixels": ObservationSettings(frozenset({"pixels", "joint_pos", "joint_vel"})),
     "enn": ObservationSettings(frozenset({"pixels", "guidewire_mask", "joint_pos", "joint_vel"})),
 }
+
+
+class JointObservables(composer.Observables):
+    """Positions and velocities of an entity's `joints` (the proprioception group)."""
+
+    @composer.observable
+    def joint_pos(self):
+        return observable.MJCFFeature("qpos", self._entity.joints)
+
+    @composer.observable
+    def joint_vel(self):
+        return observable.MJCFFeature("qvel", self._entity.joints)
+
+    @property
+    def proprioception(self):
+        return [self.joint_pos, self.joint_vel]
 
 
 def observation_settings(preset: str, **overrides) -> ObservationSettings:

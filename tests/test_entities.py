@@ -86,3 +86,20 @@ def test_entities_in_a_users_own_task():
     insertion = env.physics.bind(task.robot.joints).qpos[0]
     assert insertion == pytest.approx(0.02, rel=0.1)
     assert tip.xpos[1] - start[1] > 0.01
+
+
+def test_entity_observables_report_their_joints():
+    wire, robot = Guidewire(n_segments=6, n_tip_segments=2), FollowerRobot()
+    arena = OperatingArena()
+    arena.attach(robot)
+    robot.attach(wire, robot.wire_attachment_site)
+    for observables in (wire.observables, robot.observables):
+        for item in observables.proprioception:
+            item.enabled = True
+    wire.observables.tip_position.enabled = True
+    env = composer.Environment(composer.NullTask(arena))
+    observation = env.reset().observation
+    assert observation["follower/guidewire/joint_pos"].shape == (2 * 7,)
+    assert observation["follower/joint_pos"].shape == (2,)
+    tip = env.physics.bind(wire.tip_site).xpos
+    np.testing.assert_allclose(observation["follower/guidewire/tip_position"], tip)

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 from dm_control import composer, mjcf
-from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
+from cathsim_dmc.observables import JointObservables
 
 
 
@@ -176,17 +176,5 @@ class FollowerRobot(composer.Entity):
         physics.bind(self.actuators).ctrl = 0.0
 
 
-class FollowerRobotObservables(composer.Observables):
-
-    @composer.observable
-    def joint_pos(self):
-        """Insertion depth (m) and rotation angle (rad) of the carriage."""
-        return observable.MJCFFeature("qpos", self._entity.joints)
-
-    @composer.observable
-    def joint_vel(self):
-        return observable.MJCFFeature("qvel", self._entity.joints)
-
-    @property
-    def proprioception(self):
-        return [self.joint_pos, self.joint_vel]
+class FollowerRobotObservables(JointObservables):
+    """joint_pos: insertion depth (m) and rotation angle (rad); joint_vel: their rates."""

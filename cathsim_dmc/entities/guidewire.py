@@ -25,6 +25,7 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
+from cathsim_dmc.observables import JointObservables
 
 TIP_SHAPES = ("straight", "angled", "j")
 
@@ -253,16 +254,8 @@ class Guidewire(composer.Entity):
         physics.bind(self._joints).qvel = 0.0
 
 
-class GuidewireObservables(composer.Observables):
-    """What the wire itself can report."""
-
-    @composer.observable
-    def joint_pos(self):
-        return observable.MJCFFeature("qpos", self._entity.joints)
-
-    @composer.observable
-    def joint_vel(self):
-        return observable.MJCFFeature("qvel", self._entity.joints)
+class GuidewireObservables(JointObservables):
+    """Bending angles and rates (joint_pos, joint_vel), tip and segment positions."""
 
     @composer.observable
     def tip_position(self):
@@ -271,7 +264,3 @@ class GuidewireObservables(composer.Observables):
     @composer.observable
     def segment_positions(self):
         return observable.MJCFFeature("xpos", self._entity.segments)
-
-    @property
-    def proprioception(self):
-        return [self.joint_pos, self.joint_vel]
