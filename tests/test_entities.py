@@ -97,7 +97,7 @@ def test_entity_observables_report_their_joints():
         for item in observables.proprioception:
             item.enabled = True
     wire.observables.tip_position.enabled = True
-    env = composer.Environment(composer.NullTask(arena))
+    env = composer.Environment(composer.NullTask(arena), strip_singleton_obs_buffer_dim=True)
     observation = env.reset().observation
     assert observation["follower/guidewire/joint_pos"].shape == (2 * 7,)
     assert observation["follower/joint_pos"].shape == (2,)
