@@ -55,18 +55,24 @@ def _run(aorta, random_steps, max_steps, seed=0):
         monitor.check(env)
         if timestep.last():
             env.reset()
-    return monitor
+    return monitor, env
 
 
 @pytest.mark.parametrize("aorta", available_aortas())
-def test_no_escape_short(aorta):
-    monitor = _run(aorta, random_steps=150, max_steps=100)
+def test_no_escape_short_then_divergence_truncates(aorta):
+    monitor, env = _run(aorta, random_steps=150, max_steps=100)
     assert monitor.escapes == 0, f"worst point {monitor.worst_outside_m * 1e3:.2f} mm outside the lumen"
+    # A blown-up state ends the episode as a truncation, and the next reset works.
+    env.physics.data.qvel[:] = np.nan
+    timestep = env.step(np.array([1.0, 0.0]))
+    assert timestep.last() and timestep.discount == 1.0 and env.task.diverged
+    env.reset()
+    assert env.step(np.array([1.0, 0.0])).mid() and not env.task.diverged
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("aorta", available_aortas())
 def test_no_escape_long(aorta):
     """The issue's protocol: 10,000 random steps, then 300 at full insertion and rotation."""
-    monitor = _run(aorta, random_steps=10_000, max_steps=300)
+    monitor, _ = _run(aorta, random_steps=10_000, max_steps=300)
     assert monitor.escapes == 0, f"worst point {monitor.worst_outside_m * 1e3:.2f} mm outside the lumen"
