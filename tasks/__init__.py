@@ -64,8 +64,11 @@ def build_task(
         raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
     settings = observation_settings(obs, **({"image_size": image_size} if image_size else {}))
     wire = Guidewire(**(guidewire or {}))
-    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **(robot or {}))
-    vessel = Aorta(asset=aorta, **(aorta_options or {}))
+    # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
+    contact = dict(channel_solref=wire.contact_solref, channel_solimp=wire.contact_solimp)
+    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **{**contact, **(robot or {})})
+    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp)
+    vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})
     return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)
 
 

@@ -40,6 +40,8 @@ class FollowerRobot(composer.Entity):
         wire_radius_m: float = 0.445e-3,
         servo_stiffness_n_m: float = 2e4,
         servo_stiffness_nm_rad: float = 50.0,
+        channel_solref: tuple = (0.02, 1.0),
+        channel_solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
         name: str = "follower",
     ):
         """Builds the robot.
@@ -57,6 +59,9 @@ class FollowerRobot(composer.Entity):
           wire_radius_m: radius of the held wire, in metres (sizes the channel).
           servo_stiffness_n_m: insertion servo stiffness, N/m.
           servo_stiffness_nm_rad: rotation servo stiffness, N m/rad.
+          channel_solref, channel_solimp: contact parameters of the guide channel;
+            give it the wire's values (MuJoCo mixes the two geoms'), or the channel
+            is softer than the vessel wall.
           name: model name.
         """
         if stroke_m >= wire_length_m - initial_insertion_m:
@@ -114,7 +119,8 @@ class FollowerRobot(composer.Entity):
             size = [wall, half + 2 * wall, channel_len / 2] if dx else [half + 2 * wall, wall, channel_len / 2]
             wb.add("geom", name=f"guide{i}", type="box", size=size,
                    pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
-                   contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, rgba=[0.45, 0.45, 0.5, 0.5])
+                   contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, rgba=[0.45, 0.45, 0.5, 0.5],
+                   solref=list(channel_solref), solimp=list(channel_solimp))
 
         # Integrated-velocity servos: d(setpoint)/dt = ctrl (joint units per second).
         self._insertion_actuator = root.actuator.add(

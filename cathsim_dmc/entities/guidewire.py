@@ -122,6 +122,8 @@ class Guidewire(composer.Entity):
         if contact_solref is None:
             contact_solref = (2.0 * physics_timestep_s, 1.0)
         self.mass_scale = float(mass_scale)
+        self.contact_solref = tuple(contact_solref)
+        self.contact_solimp = tuple(contact_solimp)
 
         # Half-length proximal segment: see the module docstring (midpoint rule).
         shaft_l = (length_m - tip_length_m) / (n_segments - 0.5)
