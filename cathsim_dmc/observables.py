@@ -29,10 +29,6 @@ class ObservationSettings:
     image_size: int = IMAGE_SIZE
     style: str = "camera"
 
-    @property
-    def needs_rendering(self) -> bool:
-        return bool({"pixels", "guidewire_mask"} & self.enabled)
-
 
 OBSERVATION_PRESETS = {
     "internal": ObservationSettings(frozenset({"joint_pos", "joint_vel"})),
