@@ -1,8 +1,17 @@
-"""Built-in baseline policies: functions from (observation, environment) to an action."""
+"""Policies for evaluation and data collection: functions from (observation, env) to an action.
+
+`env` is a `cathsim_dmc.gym.CathSimEnv`; built-in policies may use it (the expert reads
+privileged state through it), learned ones only look at the observation.
+"""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
+
+POLICY_FILE = "policy.json"  # next to a checkpoint: what it needs to be evaluated
 
 
 class ForwardPolicy:
@@ -22,12 +31,78 @@ class RandomPolicy:
         return self._rng.uniform(-1.0, 1.0, size=2).astype(np.float32)
 
 
-BUILTIN_POLICIES = {"forward": ForwardPolicy, "random": RandomPolicy}
+def _expert(seed: int = 0):
+    from cathsim_dmc.experts import CenterlineExpert
+
+    return CenterlineExpert()
+
+
+BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomPolicy, "expert": _expert}
+
+
+class CheckpointPolicy:
+    """A trained agent loaded from a checkpoint; acts deterministically on observations."""
+
+    def __init__(self, model, obs_preset: str):
+        self.model = model
+        self.obs_preset = obs_preset
+
+    def __call__(self, observation, env) -> np.ndarray:
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+
+def find_checkpoint(path) -> Path:
+    """The model file for `path`: a checkpoint file itself, or the newest one in a run folder."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip"):
+            if candidate.is_file():
+                return candidate
+        zips = sorted(path.glob("**/*.zip"), key=lambda p: p.stat().st_mtime)
+        if zips:
+            return zips[-1]
+        raise FileNotFoundError(f"no checkpoint (.zip) in {path}")
+    raise FileNotFoundError(f"no checkpoint at {path}")
+
+
+def load_checkpoint_policy(path) -> CheckpointPolicy:
+    """Load a checkpoint written by cathsim-train (or cathsim-bc).
+
+    Its `policy.json` (next to it, or in the run folder above) names the algorithm and
+    the observation preset the agent was trained with.
+    """
+    model_path = find_checkpoint(path)
+    info = None
+    for folder in (model_path.parent, model_path.parent.parent):
+        if (folder / POLICY_FILE).is_file():
+            info = json.loads((folder / POLICY_FILE).read_text())
+            break
+    if info is None:
+        raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+    algo = info.get("algo", "sac")
+    try:
+        if algo == "sac":
+            from stable_baselines3 import SAC
+
+            model = SAC.load(model_path, device="cpu")
+        elif algo == "bc":
+            from cathsim_dmc.rl.bc import load_bc_policy
+
+            model = load_bc_policy(model_path)
+        else:
+            raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
+    except (OSError, KeyError, RuntimeError, EOFError) as error:
+        raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
+    return CheckpointPolicy(model, info["obs"])
 
 
 def make_policy(name: str, seed: int = 0):
-    if name == "random":
-        return RandomPolicy(seed)
+    """A built-in policy by name, or a checkpoint by path."""
     if name in BUILTIN_POLICIES:
-        return BUILTIN_POLICIES[name]()
-    raise ValueError(f"policy={name!r} is not a built-in policy; choose one of {sorted(BUILTIN_POLICIES)}")
+        return BUILTIN_POLICIES[name](seed=seed)
+    if Path(name).exists():
+        return load_checkpoint_policy(name)
+    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)} nor a checkpoint path")

@@ -1,6 +1,6 @@
 """The trajectory file every tool writes and reads (``trajectories.npz``).
 
-Schema (version 1): one row per control step, all episodes concatenated.
+Schema (version 2): one row per control step, all episodes concatenated.
 
   schema_version     ()        int, 1
   task, aorta        ()        str
@@ -14,8 +14,14 @@ Schema (version 1): one row per control step, all episodes concatenated.
   success            (N,)      bool, tip within the success radius after the step
   terminated         (N,)      bool, episode ended at the target
   truncated          (N,)      bool, episode cut by the time limit or divergence
+  obs_<key>          (N, ...)  observation after the step, when recorded (e.g. obs_pixels
+                               (N, 1, 80, 80) uint8, obs_joint_pos (N, J) float32)
   start_tip_position_m (E, 3)  float32, tip at reset, per episode
+  optimal_path_length_m (E,)   float32, centerline length from the start to the target
   target_position_m  (3,)      float32
+  policy             ()        str, what produced the actions
+
+Version 2 added `optimal_path_length_m` (for SPL), `policy` and `obs_<key>`.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 _PER_STEP = {
     "episode": np.int32, "step": np.int32, "action": np.float32, "reward": np.float32,
     "tip_position_m": np.float32, "contact_force_n": np.float32, "target_distance_m": np.float32,
@@ -40,13 +46,22 @@ class TrajectoryRecorder:
     task: str
     aorta: str
     target_position_m: np.ndarray
+    policy: str = ""
+    record_observations: bool = False
     rows: dict = field(default_factory=lambda: {k: [] for k in _PER_STEP})
+    observations: dict = field(default_factory=dict)
     starts: list = field(default_factory=list)
+    optimal_paths: list = field(default_factory=list)
 
-    def start_episode(self, tip_position_m) -> None:
+    def start_episode(self, tip_position_m, optimal_path_length_m: float) -> None:
         self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
+        self.optimal_paths.append(float(optimal_path_length_m))
 
-    def record(self, action, reward, info, terminated, truncated) -> None:
+    def record(self, action, reward, info, terminated, truncated, observation=None) -> None:
+        if self.record_observations and observation is not None:
+            for key, value in observation.items():
+                value = np.asarray(value)
+                self.observations.setdefault(key, []).append(value if value.dtype == np.uint8 else value.astype(np.float32))
         values = {
             "episode": len(self.starts) - 1, "step": info["step"], "action": action, "reward": reward,
             "tip_position_m": info["tip_position_m"], "contact_force_n": info["contact_force_n"],
@@ -60,9 +75,12 @@ class TrajectoryRecorder:
         out = {key: np.asarray(self.rows[key], dtype=dtype) for key, dtype in _PER_STEP.items()}
         out["action"] = out["action"].reshape(-1, 2)
         out["tip_position_m"] = out["tip_position_m"].reshape(-1, 3)
+        out.update({f"obs_{key}": np.stack(values) for key, values in self.observations.items()})
         out.update(
             schema_version=np.int32(SCHEMA_VERSION), task=np.str_(self.task), aorta=np.str_(self.aorta),
+            policy=np.str_(self.policy),
             start_tip_position_m=np.asarray(self.starts, dtype=np.float32).reshape(-1, 3),
+            optimal_path_length_m=np.asarray(self.optimal_paths, dtype=np.float32),
             target_position_m=np.asarray(self.target_position_m, dtype=np.float32),
         )
         return out

@@ -18,8 +18,14 @@ def fail(message: str) -> "NoReturn":  # noqa: F821
     raise SystemExit(USAGE_ERROR)
 
 
-def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]]) -> None:
-    """Exit with status 2 if `key=value` (or `key=a,b` in a sweep) names an unknown choice."""
+def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]],
+                    paths_allowed: Sequence[str] = ()) -> None:
+    """Exit with status 2 if `key=value` (or `key=a,b` in a sweep) names an unknown choice.
+
+    For keys in `paths_allowed` an existing file or folder is accepted too (a checkpoint).
+    """
+    from pathlib import Path
+
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
             continue
@@ -28,17 +34,23 @@ def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequ
             continue
         valid = list(choices[key]())
         for item in value.split(","):
-            if item not in valid:
+            if item in valid:
+                continue
+            if key in paths_allowed:
+                if not Path(item).exists():
+                    fail(f"{key}={item!r} is neither one of {valid} nor an existing checkpoint path")
+            else:
                 fail(f"{key}={item!r} is not valid; choose one of {valid}")
 
 
-def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]]):
+def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
+              paths_allowed: Sequence[str] = ()):
     """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
     import hydra
 
     from cathsim_dmc.paths import conf_root
 
-    check_overrides(sys.argv[1:], argv_choices)
+    check_overrides(sys.argv[1:], argv_choices, paths_allowed)
 
     def guarded(cfg):
         # Hydra prints a traceback for exceptions from the task; a bad value in the

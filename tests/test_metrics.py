@@ -1,0 +1,68 @@
+"""The paper's metrics on hand-made trajectories with known answers."""
+
+import numpy as np
+import pytest
+
+from cathsim_dmc import metrics
+
+
+def test_straight_episode_known_values():
+    # Tip moves 1 cm per step along +y for 4 steps; forces 0, 1, 3, 4 N; reached the target.
+    start = np.zeros(3)
+    tips = np.array([[0, 0.01 * k, 0] for k in range(1, 5)])
+    forces = np.array([0.0, 1.0, 3.0, 4.0])
+    m = metrics.episode_metrics(start, tips, forces, success=True, optimal_path_m=0.03)
+    assert m.force_n == pytest.approx(2.0)
+    assert m.path_length_cm == pytest.approx(4.0)
+    assert m.episode_length == 4
+    assert m.safety_pct == pytest.approx(50.0)  # 0 and 1 N are below 2 N; 3 and 4 are not
+    assert m.success_pct == 100.0
+    assert m.spl_pct == pytest.approx(75.0)  # 3 cm optimal over 4 cm travelled
+
+
+def test_failure_has_zero_spl_and_back_and_forth_counts_both_ways():
+    tips = np.array([[0, 0.01, 0], [0, 0.0, 0], [0, 0.01, 0]])
+    m = metrics.episode_metrics(np.zeros(3), tips, np.ones(3), success=False, optimal_path_m=0.01)
+    assert m.path_length_cm == pytest.approx(3.0)
+    assert m.spl_pct == 0.0 and m.success_pct == 0.0
+    assert m.safety_pct == 100.0
+
+
+def test_shorter_than_optimal_path_caps_spl_at_100():
+    m = metrics.episode_metrics(np.zeros(3), [[0, 0.005, 0]], [0.0], success=True, optimal_path_m=0.02)
+    assert m.spl_pct == pytest.approx(100.0)
+
+
+def test_remaining_centerline_length():
+    # An L-shaped centerline: 3 cm up, then 4 cm along x.
+    line = np.array([[0, 0, 0], [0, 0.03, 0], [0.04, 0.03, 0]])
+    assert metrics.remaining_centerline_length_m(line, [0.001, 0.01, 0]) == pytest.approx(0.06)
+    assert metrics.remaining_centerline_length_m(line, [0.02, 0.031, 0]) == pytest.approx(0.02)
+    assert metrics.remaining_centerline_length_m(line, [0.05, 0.03, 0]) == pytest.approx(0.0)
+
+
+def test_summarize_and_table():
+    a = metrics.episode_metrics(np.zeros(3), [[0, 0.01, 0]], [1.0], True, 0.01)
+    b = metrics.episode_metrics(np.zeros(3), [[0, 0.03, 0]], [3.0], False, 0.01)
+    summary = metrics.summarize([a, b])
+    assert summary["force_n"]["mean"] == pytest.approx(2.0) and summary["force_n"]["std"] == pytest.approx(1.0)
+    assert summary["success_pct"]["mean"] == pytest.approx(50.0)
+    assert summary["path_length_cm"]["mean"] == pytest.approx(2.0)
+    table = metrics.markdown_table([({"Target": "BCA", "Policy": "test"}, summary)])
+    lines = table.strip().splitlines()
+    assert lines[0].startswith("| Target | Policy | Force (N)") and len(lines) == 3
+    assert "| BCA | test | 2.00 ± 1.00 | 2.0 ± 1.0 | 1 ± 0 | 50 ± 50 | 50 ± 50 | 50 ± 50 |" == lines[2]
+
+
+def test_trajectory_metrics_splits_episodes():
+    arrays = {
+        "episode": np.array([0, 0, 1]),
+        "tip_position_m": np.array([[0, 0.01, 0], [0, 0.02, 0], [0.01, 0, 0]]),
+        "contact_force_n": np.array([0.5, 2.5, 1.0]),
+        "success": np.array([False, True, False]),
+        "start_tip_position_m": np.zeros((2, 3)),
+        "optimal_path_length_m": np.array([0.02, 0.05]),
+    }
+    first, second = metrics.trajectory_metrics(arrays)
+    assert first.episode_length == 2 and first.success_pct == 100 and first.spl_pct == pytest.approx(100.0)
+    assert second.episode_length == 1 and second.path_length_cm == pytest.approx(1.0) and second.spl_pct == 0
