@@ -46,13 +46,16 @@ class ContactForces:
         return len(self.forces_n)
 
 
-def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True) -> ContactForces:
-    """Contact forces between wire geoms and any other geom.
+def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
+                  is_vessel_geom: np.ndarray | None = None) -> ContactForces:
+    """Contact forces between wire geoms and other geoms.
 
     Args:
       physics: a dm_control Physics.
       is_wire_geom: boolean array over all geom ids, True for the wire's geoms.
       recompute: run ``mj_forward`` first so that the forces match the current state.
+      is_vessel_geom: boolean array over all geom ids; if given, only contacts with these
+        geoms count (so the robot's guide channel, which is not tissue, is left out).
     """
     model, data = physics.model.ptr, physics.data.ptr
     if recompute:
@@ -66,6 +69,8 @@ def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True) -> 
     wire1 = is_wire_geom[geom[:, 0]]
     wire2 = is_wire_geom[geom[:, 1]]
     keep = (wire1 ^ wire2) & (contact.efc_address[:ncon] >= 0)
+    if is_vessel_geom is not None:
+        keep &= is_vessel_geom[geom[:, 0]] | is_vessel_geom[geom[:, 1]]
     if not keep.any():
         return ContactForces(empty, empty, np.zeros(0, dtype=int))
     address = contact.efc_address[:ncon][keep]

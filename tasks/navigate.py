@@ -155,6 +155,8 @@ class Navigate(composer.Task):
         self._contacts = None
         self._wire_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
+        self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
+        self._vessel_mask[physics.bind(self._aorta.collision_geoms).element_id] = True
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
@@ -192,9 +194,12 @@ class Navigate(composer.Task):
         return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
 
     def contact_forces(self, physics) -> cs_physics.ContactForces:
-        """Wire-vessel contact forces for the current state (computed once per step)."""
+        """Wire-vessel contact forces for the current state (computed once per step).
+
+        Contacts with the robot's guide channel are not forces on tissue and are left out.
+        """
         if self._contacts is None:
-            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask)
+            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, is_vessel_geom=self._vessel_mask)
         return self._contacts
 
     @property

@@ -120,7 +120,10 @@ class FollowerRobot(composer.Entity):
             wb.add("geom", name=f"guide{i}", type="box", size=size,
                    pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
                    contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, rgba=[0.45, 0.45, 0.5, 0.5],
-                   solref=list(channel_solref), solimp=list(channel_solimp))
+                   solref=list(channel_solref), solimp=list(channel_solimp),
+                   # A lubricated introducer: frictionless (priority makes its condim win
+                   # over the wire's), so pinching in the channel does not eat the drive force.
+                   priority=1, condim=1)
 
         # Integrated-velocity servos: d(setpoint)/dt = ctrl (joint units per second).
         self._insertion_actuator = root.actuator.add(
