@@ -34,7 +34,7 @@ def test_guidewire_structure_and_rest_shape():
     assert np.isclose(wire.rest_qpos.sum(), np.radians(60.0))
     assert np.count_nonzero(wire.rest_qpos[: 2 * 19]) == 0
     # Stiffness comes from the material: k = E I / l, l the rod length per joint.
-    inertia = np.pi * wire.diameter_m**4 / 64
+    inertia = np.pi * wire.core_diameter_m**4 / 64
     shaft_spacing = wire.segment_lengths_m[1]
     assert np.isclose(wire.joint_stiffness[0], 40e9 * inertia / shaft_spacing)
     assert np.isclose(wire.segment_lengths_m.sum(), wire.length_m)

@@ -53,6 +53,7 @@ class Guidewire(composer.Entity):
         self,
         length_m: float = 0.35,
         diameter_m: float = 0.89e-3,  # 0.035 in, the most common peripheral guidewire
+        core_diameter_m: float | None = 0.5e-3,  # nitinol core under the polymer jacket (assumed)
         n_segments: int = 24,  # 14 mm shaft pieces: beam error < 0.3% with midpoint joints
         n_tip_segments: int = 10,  # 2 mm tip pieces carry the shaped curve
         youngs_modulus_pa: float = 40e9,  # nitinol, austenite 40-75 GPa (Duerig et al. 1999); low end for a jacketed core
@@ -74,7 +75,12 @@ class Guidewire(composer.Entity):
         Args:
           length_m: simulated wire length in metres (the distal part that can reach
             the vessel; the rest of a real wire stays outside the patient).
-          diameter_m: outer diameter in metres.
+          diameter_m: outer diameter in metres (contact and drawing).
+          core_diameter_m: diameter in metres of the load-bearing core that sets the
+            bending stiffness (I = pi d_core^4 / 64); None for a solid wire. Hydrophilic
+            0.035 in wires are a thin nitinol core in a soft polymer jacket: a solid
+            0.89 mm nitinol rod is ~10x stiffer (EI 1.2e-3 vs 1.2e-4 N m^2) and, measured
+            here, could not be steered into the branches of type II/III arches.
           n_segments: number of shaft segments.
           n_tip_segments: number of (shorter) tip segments.
           youngs_modulus_pa: shaft Young's modulus in Pa.
@@ -115,6 +121,9 @@ class Guidewire(composer.Entity):
         self.length_m = float(length_m)
         self.diameter_m = float(diameter_m)
         self.radius_m = diameter_m / 2.0
+        self.core_diameter_m = float(diameter_m if core_diameter_m is None else core_diameter_m)
+        if not 0 < self.core_diameter_m <= self.diameter_m:
+            raise ValueError(f"core_diameter_m={core_diameter_m} must lie in (0, diameter_m={diameter_m}]")
         self.tip_length_m = float(tip_length_m)
         self.physics_timestep_s = float(physics_timestep_s)
         if mass_scale is None:
@@ -130,7 +139,7 @@ class Guidewire(composer.Entity):
         tip_l = tip_length_m / n_tip_segments
         seg_lengths = [shaft_l / 2] + [shaft_l] * (n_segments - 1) + [tip_l] * n_tip_segments
         seg_moduli = [youngs_modulus_pa] * n_segments + [tip_youngs_modulus_pa] * n_tip_segments
-        inertia_area = second_moment_of_area(diameter_m)
+        inertia_area = second_moment_of_area(self.core_diameter_m)
         self.bending_stiffness_nm2 = youngs_modulus_pa * inertia_area  # EI of the shaft
         self.tip_bending_stiffness_nm2 = tip_youngs_modulus_pa * inertia_area
 
