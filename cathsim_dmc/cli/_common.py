@@ -57,7 +57,7 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
         # config is the user's input, so it gets our one-line error (SystemExit passes).
         try:
             return task_function(cfg)
-        except (ValueError, FileNotFoundError) as error:
+        except (ValueError, FileNotFoundError, MemoryError) as error:
             fail(str(error))
 
     guarded.__name__ = getattr(task_function, "__name__", "app")

@@ -1,0 +1,96 @@
+"""cathsim-train: SAC with the ENN (or a single-modality baseline) on a navigation task.
+
+    cathsim-train task=bca aorta=type2                      # obs=enn algo=sac by default
+    cathsim-train obs=internal trainer.total_timesteps=100000 seed=1
+    cathsim-train -m seed=0,1,2,3,4                         # seed sweep
+    cathsim-train resume=outputs/train/bca-type1/enn/<run>  # continue from the last checkpoint
+
+The run folder gets: config.yaml (resolved), policy.json, tensorboard/, checkpoints/
+(step_<n>.zip, last.zip), final_model.zip and eval/ (metrics.md, metrics.json, path.png,
+forces.png, trajectories.npz, video) from cathsim-eval's code.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+log = logging.getLogger("cathsim-train")
+
+
+def _task_kwargs(cfg) -> dict:
+    from omegaconf import OmegaConf
+
+    kwargs = dict(delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward, dense=cfg.task.dense,
+                  max_steps=cfg.task.max_steps)
+    params = cfg.aorta.get("params")
+    if params is not None:
+        kwargs["aorta_params"] = OmegaConf.to_container(params)
+    return kwargs
+
+
+def run(cfg) -> dict:
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc.cli.eval import evaluate_policy
+    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.policies import CheckpointPolicy
+    from cathsim_dmc.rl.train import make_vec_env, train
+
+    resume = cfg.get("resume")
+    if resume:
+        run_dir = Path(str(resume))
+        saved = run_dir / "config.yaml"
+        if not saved.is_file():
+            raise FileNotFoundError(f"resume={resume!r} is not a cathsim-train run folder (no config.yaml)")
+        # The run continues with its own settings; only the step budget may be raised.
+        original = OmegaConf.load(saved)
+        if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
+            original.trainer.total_timesteps = cfg.trainer.total_timesteps
+        cfg = original
+    else:
+        run_dir = Path(HydraConfig.get().runtime.output_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    if cfg.trainer.n_envs < 1:
+        raise ValueError(f"trainer.n_envs={cfg.trainer.n_envs} must be at least 1")
+    device = cfg.trainer.device
+    if device not in ("auto", "cpu", "cuda") and not str(device).startswith("cuda:"):
+        raise ValueError(f"trainer.device={device!r}; choose one of ['auto', 'cpu', 'cuda']")
+
+    algo = OmegaConf.to_container(cfg.algo, resolve=True)
+    trainer = OmegaConf.to_container(cfg.trainer, resolve=True)
+    task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
+    env = make_vec_env(task, aorta, obs, cfg.seed, cfg.trainer.n_envs, _task_kwargs(cfg))
+    try:
+        result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume))
+    finally:
+        env.close()
+    log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
+             result.steps / max(result.seconds, 1e-9))
+
+    eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **_task_kwargs(cfg))
+    try:
+        report = evaluate_policy(eval_env, CheckpointPolicy(result.model, obs), f"sac-{obs}", cfg.trainer.eval_episodes,
+                                 seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video)
+    finally:
+        eval_env.close()
+    print((run_dir / "eval" / "metrics.md").read_text(), end="")
+    print(f"run folder: {run_dir}")
+    return report
+
+
+def main():
+    from cathsim_dmc.cli._common import run_hydra
+    from cathsim_dmc.observables import OBSERVATION_PRESETS
+    from cathsim_dmc.tasks import TARGETS, aorta_choices
+
+    run_hydra(run, "train", {
+        "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
+        "algo": lambda: ["sac"],
+    })
+
+
+if __name__ == "__main__":
+    main()

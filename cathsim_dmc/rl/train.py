@@ -1,0 +1,263 @@
+"""SAC training on the navigation tasks: model set-up, memory check, callbacks, checkpoints.
+
+Used by ``cathsim-train`` (cathsim_dmc/cli/train.py); importable for scripts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CHECKPOINT_DIR = "checkpoints"
+LAST_CHECKPOINT = "last.zip"
+REPLAY_BUFFER = "replay_buffer.pkl"
+FINAL_MODEL = "final_model.zip"
+
+
+# -- environments ------------------------------------------------------------------
+def make_env_fn(task: str, aorta: str, obs: str, seed: int, task_kwargs: dict):
+    """A picklable constructor for vector envs (each subprocess builds its own env)."""
+
+    def build():
+        from stable_baselines3.common.monitor import Monitor
+
+        from cathsim_dmc.gym import CathSimEnv
+
+        env = CathSimEnv(task=task, aorta=aorta, obs=obs, **task_kwargs)
+        env.reset(seed=seed)
+        return Monitor(env, info_keywords=("success",))
+
+    return build
+
+
+def make_vec_env(task, aorta, obs, seed, n_envs, task_kwargs):
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    fns = [make_env_fn(task, aorta, obs, seed + i, task_kwargs) for i in range(n_envs)]
+    if n_envs == 1:
+        return DummyVecEnv(fns)
+    # forkserver/spawn: MuJoCo GL contexts and torch threads do not survive a fork well.
+    return SubprocVecEnv(fns, start_method="spawn")
+
+
+# -- memory ------------------------------------------------------------------------
+def replay_bytes_per_transition(observation_space, action_dim: int) -> int:
+    """Bytes one transition takes in SB3's (Dict)ReplayBuffer: observation and next
+    observation at their own dtype (images stay uint8), action, reward, done, timeout."""
+    obs_bytes = 0
+    for space in getattr(observation_space, "spaces", {"": observation_space}).values():
+        obs_bytes += int(np.prod(space.shape)) * np.dtype(space.dtype).itemsize
+    return 2 * obs_bytes + 4 * action_dim + 4 + 4 + 4
+
+
+def available_memory_bytes() -> int:
+    """MemAvailable from /proc/meminfo (what can be allocated without swapping)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+
+
+def check_replay_memory(observation_space, action_dim: int, buffer_size: int, fraction: float = 0.8) -> int:
+    """Raise MemoryError (one line: the estimate and the fix) if the buffer would not fit."""
+    per = replay_bytes_per_transition(observation_space, action_dim)
+    need = per * buffer_size
+    have = available_memory_bytes()
+    if need > fraction * have:
+        fits = int(fraction * have / per)
+        raise MemoryError(
+            f"replay buffer of {buffer_size:,} transitions needs ~{need / 2**30:.1f} GiB "
+            f"({per:,} B each) but {have / 2**30:.1f} GiB is available; "
+            f"lower algo.buffer_size (at most ~{fits:,} here)")
+    return need
+
+
+# -- model -------------------------------------------------------------------------
+def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None):
+    from stable_baselines3 import SAC
+
+    from cathsim_dmc.rl.features import ENNExtractor
+
+    policy_kwargs = dict(
+        features_extractor_class=ENNExtractor,
+        net_arch=list(algo["net_arch"]),
+        share_features_extractor=bool(algo["share_features_extractor"]),
+    )
+    return SAC(
+        "MultiInputPolicy", env,
+        learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
+        learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
+        tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
+        gradient_steps=int(algo["gradient_steps"]), target_update_interval=int(algo["target_update_interval"]),
+        target_entropy=float(algo["target_entropy"]), ent_coef=algo["ent_coef"],
+        policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_dir, seed=seed, device=device, verbose=0,
+    )
+
+
+# -- callbacks ---------------------------------------------------------------------
+def _callbacks():
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class EpisodeStats(BaseCallback):
+        """Logs success rate, mean contact force (N) and steps/s over finished episodes."""
+
+        def __init__(self, window: int = 20):
+            super().__init__()
+            self.window = window
+            self._force_sum = None
+            self._steps = None
+            self._successes, self._forces = [], []
+            self._t0 = time.perf_counter()
+            self._n0 = 0
+
+        def _on_training_start(self):
+            n = self.training_env.num_envs
+            self._force_sum, self._steps = np.zeros(n), np.zeros(n)
+            self._t0, self._n0 = time.perf_counter(), self.num_timesteps
+
+        def _on_step(self) -> bool:
+            infos, dones = self.locals["infos"], self.locals["dones"]
+            for i, (info, done) in enumerate(zip(infos, dones)):
+                self._force_sum[i] += info.get("contact_force_n", 0.0)
+                self._steps[i] += 1
+                if done:
+                    self._successes.append(float(info.get("success", False)))
+                    self._forces.append(self._force_sum[i] / max(self._steps[i], 1))
+                    self._force_sum[i] = self._steps[i] = 0
+                    self._successes, self._forces = self._successes[-self.window:], self._forces[-self.window:]
+                    self.logger.record("rollout/success_rate", float(np.mean(self._successes)))
+                    self.logger.record("rollout/mean_contact_force_n", float(np.mean(self._forces)))
+            elapsed = time.perf_counter() - self._t0
+            if elapsed > 0:
+                self.logger.record("time/env_steps_per_s", (self.num_timesteps - self._n0) / elapsed)
+            return True
+
+    class Checkpoints(BaseCallback):
+        """Every `every` steps: model (and optionally the replay buffer), written atomically."""
+
+        def __init__(self, run_dir: Path, every: int, replay_buffer: bool):
+            super().__init__()
+            self.dir = Path(run_dir) / CHECKPOINT_DIR
+            self.every, self.replay_buffer = int(every), bool(replay_buffer)
+            self._last = None
+
+        def _on_training_start(self):
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self._last = self.num_timesteps
+
+        def _on_step(self) -> bool:
+            if self.every > 0 and self.num_timesteps - self._last >= self.every:
+                self.save()
+            return True
+
+        def save(self):
+            self._last = self.num_timesteps
+            save_checkpoint(self.model, self.dir, self.replay_buffer)
+
+    class Progress(BaseCallback):
+        """A tqdm bar over the run's total steps, with ETA."""
+
+        def __init__(self, total: int):
+            super().__init__()
+            self.total = total
+            self.bar = None
+
+        def _on_training_start(self):
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, initial=self.num_timesteps, unit="step", desc="training",
+                            mininterval=2.0)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.num_timesteps - self.bar.n)
+            return True
+
+        def _on_training_end(self):
+            self.bar.close()
+
+    return EpisodeStats, Checkpoints, Progress
+
+
+def _atomic(path: Path, write) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    # SB3 appends .zip when the name lacks it.
+    written = tmp if tmp.exists() else tmp.with_name(tmp.name + ".zip")
+    os.replace(written, path)
+
+
+def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
+    """step_<n>.zip and last.zip (same content), replay_buffer.pkl optional; atomic."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    last = folder / LAST_CHECKPOINT
+    _atomic(last, lambda tmp: model.save(tmp))
+    step_file = folder / f"step_{model.num_timesteps}.zip"
+    _atomic(step_file, lambda tmp: tmp.write_bytes(last.read_bytes()))
+    if replay_buffer:
+        _atomic(folder / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
+    return last
+
+
+@dataclass
+class TrainResult:
+    model: object
+    run_dir: Path
+    steps: int
+    seconds: float
+
+
+def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str) -> None:
+    from cathsim_dmc.policies import POLICY_FILE
+
+    (Path(run_dir) / POLICY_FILE).write_text(json.dumps({"algo": "sac", "obs": cfg_obs, "task": task, "aorta": aorta}))
+
+
+def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
+          resume: bool = False) -> TrainResult:
+    """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"]."""
+    import torch
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.callbacks import CallbackList
+
+    run_dir = Path(run_dir)
+    if trainer.get("torch_threads"):
+        torch.set_num_threads(int(trainer["torch_threads"]))
+    check_replay_memory(env.observation_space, env.action_space.shape[0], int(algo["buffer_size"]))
+    tb_dir = str(run_dir / "tensorboard")
+    ckpt_dir = run_dir / CHECKPOINT_DIR
+    if resume:
+        last = ckpt_dir / LAST_CHECKPOINT
+        if not last.is_file():
+            raise FileNotFoundError(f"nothing to resume: no {CHECKPOINT_DIR}/{LAST_CHECKPOINT} in {run_dir}")
+        model = SAC.load(last, env=env, device=trainer["device"], tensorboard_log=tb_dir)
+        if (ckpt_dir / REPLAY_BUFFER).is_file():
+            model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
+    else:
+        model = build_sac(env, algo, seed, trainer["device"], tb_dir)
+        write_policy_file(run_dir, obs, task, aorta)
+    total = int(trainer["total_timesteps"])
+    EpisodeStats, Checkpoints, Progress = _callbacks()
+    checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
+    callbacks = [EpisodeStats(), checkpoints]
+    if trainer.get("progress_bar", True):
+        callbacks.append(Progress(total))
+    start_steps, t0 = model.num_timesteps, time.perf_counter()
+    remaining = total - model.num_timesteps
+    if remaining > 0:
+        model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), log_interval=1,
+                    tb_log_name="sac", reset_num_timesteps=not resume)
+    seconds = time.perf_counter() - t0
+    checkpoints.model = model
+    save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
+    _atomic(run_dir / FINAL_MODEL, lambda tmp: model.save(tmp))
+    return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
