@@ -123,6 +123,15 @@ class Navigate(composer.Task):
         return self._max_steps
 
     @property
+    def top_view(self):
+        """The `TopView` drawing this task's `pixels` and `guidewire_mask`."""
+        return self._top_view
+
+    @property
+    def observation_settings(self) -> ObservationSettings:
+        return self._settings
+
+    @property
     def task_observables(self):
         return self._task_observables
 
