@@ -116,11 +116,6 @@ def reduce_area(image: np.ndarray, size: int) -> np.ndarray:
     return cv2.resize(image.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA)
 
 
-def reduce_any(image: np.ndarray, size: int) -> np.ndarray:
-    """True where any pixel of a block is set (its mean is then above zero)."""
-    return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA) > 0
-
-
 def fluoro_roadmap(path_length_m: np.ndarray) -> np.ndarray:
     """Transmitted intensity (0..1) of a contrast-filled lumen: Beer-Lambert."""
     return FLUORO_BACKGROUND * np.exp(-CONTRAST_ATTENUATION_PER_M * path_length_m)
@@ -169,7 +164,6 @@ class WireDrawer:
         along = np.clip((rx * d[:, 0, None, None] + ry * d[:, 1, None, None]) / length2, 0.0, 1.0)
         dx, dy = rx - along * d[:, 0, None, None], ry - along * d[:, 1, None, None]
         hit = (dx * dx + dy * dy <= radius * radius) & (px >= 0) & (px < n) & (py >= 0) & (py < n)
-        canvas = self._canvas
-        canvas.fill(0)
-        canvas[np.broadcast_to(py, hit.shape)[hit], np.broadcast_to(px, hit.shape)[hit]] = 255
-        return reduce_any(canvas, self.size)
+        mask = np.zeros((self.size, self.size), bool)
+        mask[np.broadcast_to(py, hit.shape)[hit] // k, np.broadcast_to(px, hit.shape)[hit] // k] = True
+        return mask
