@@ -30,7 +30,7 @@ _TIE_BREAK = 1e-7  # offsets sample points off exact triangle edges (no double c
 FLUORO_BACKGROUND = 0.78
 CONTRAST_ATTENUATION_PER_M = 40.0
 WIRE_OPACITY = 0.9  # radio-opaque: the darkest thing in the image
-# At 80 px a pixel spans ~2.5 mm, three wire diameters; a fluoroscope's focal-spot and
+# At 80 px a pixel spans ~3 mm, more than three wire diameters; a fluoroscope's focal-spot and
 # detector blur make a wire look wider than it is. The fluoro wire is drawn at least
 # this wide (output pixels) so that it stays the darkest feature, not a faint line.
 FLUORO_WIRE_MIN_WIDTH_PX = 1.0

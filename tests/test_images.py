@@ -130,3 +130,9 @@ def test_seeded_episode_images_are_reproducible():
     clean = others["raster", "fluoro"].image(env.physics, "fluoro")
     assert np.abs(first[-1]["pixels"].astype(int) - clean).mean() > 1
     assert set(np.unique(first[-1]["guidewire_mask"])) <= {0, 255}
+
+
+@pytest.mark.parametrize("option", [dict(renderer="vulkan"), dict(style="xray"), dict(noise_std=-1.0)])
+def test_bad_image_option_names_the_choices(option):
+    with pytest.raises(ValueError, match=next(iter(option))):
+        tasks.build_task("bca", "type1", obs="enn", **option)
