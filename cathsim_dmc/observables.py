@@ -14,11 +14,12 @@ from dm_control import composer
 from dm_control.composer.observation import observable
 from dm_control.mujoco.wrapper.core import MjvOption
 
-from cathsim_dmc import _gl, geom_groups
+from cathsim_dmc import _gl, geom_groups, raster
 
 TOP_CAMERA = "top"
 IMAGE_SIZE = 80  # the paper's 80x80 observation
-IMAGE_STYLES = ("camera",)
+IMAGE_STYLES = ("camera", "fluoro")
+RENDERERS = ("gl", "raster")
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,9 @@ class ObservationSettings:
 
     enabled: frozenset = field(default_factory=frozenset)
     image_size: int = IMAGE_SIZE
-    style: str = "camera"
+    style: str = "camera"  # or "fluoro"
+    renderer: str = "raster"  # or "gl"
+    noise_std: float = 0.0  # Gaussian pixel noise (grey levels), seeded by the environment
 
 
 OBSERVATION_PRESETS = {
@@ -63,7 +66,22 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         settings = ObservationSettings(**{**settings.__dict__, **overrides})
     if settings.style not in IMAGE_STYLES:
         raise ValueError(f"image style={settings.style!r}; choose one of {IMAGE_STYLES}")
+    if settings.renderer not in RENDERERS:
+        raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
+    if not settings.noise_std >= 0:
+        raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
     return settings
+
+
+def image_noise(std: float):
+    """Observation corruptor: Gaussian noise of `std` grey levels on a uint8 image,
+    drawn from the environment's random state (a seeded episode stays reproducible)."""
+
+    def corrupt(value, random_state):
+        noisy = value + random_state.normal(0.0, std, size=value.shape)
+        return noisy.round().clip(0, 255).astype(np.uint8)
+
+    return corrupt
 
 
 def _scene_option(groups) -> MjvOption:
@@ -77,6 +95,7 @@ def _scene_option(groups) -> MjvOption:
 
 _IMAGE_OPTION = _scene_option([0, geom_groups.VISUAL, geom_groups.WIRE])
 _MASK_OPTION = _scene_option([geom_groups.WIRE])
+_BACKGROUND_OPTION = _scene_option([0, geom_groups.VISUAL])
 
 
 class CameraCache:
@@ -107,33 +126,121 @@ class CameraCache:
 
 
 class TopView:
-    """The top (AP) camera image and guidewire mask of one environment."""
+    """The top (AP) camera image and guidewire mask of one environment.
+
+    `renderer="gl"` renders every step with MuJoCo's OpenGL renderer. `renderer="raster"`
+    projects the wire's joints through the (orthographic, fixed) top camera and draws the
+    polyline with OpenCV onto a background made once per compiled model, so a step
+    costs no GL at all. `style="fluoro"` is an X-ray-like roadmap (see
+    `cathsim_dmc.raster`); `style="camera"` is the shaded see-through vessel.
+
+    The robot (rail, guide channel) appears in the camera-style background as GL draws
+    it, but the raster wire is drawn over it: the rail hides only the wire's first
+    centimetres outside the patient, and the rail is white like the wire. The fluoro
+    style shows the patient only: the robot stays outside the X-ray field.
+    """
 
     # At 80 px over a ~0.2 m field one pixel spans ~3 mm, more than three wire diameters:
     # drawn at that size the wire breaks into dashes. Both images are drawn larger and
     # reduced; software GL pays mostly per drawn geom, little per pixel.
     IMAGE_SUPERSAMPLING = 2
     MASK_SUPERSAMPLING = 4
+    RASTER_SUPERSAMPLING = 4  # OpenCV canvas; also the roadmap's sampling
+    # Camera style, raster: grey level of a pixel fully covered by the bright wire seen
+    # through the see-through vessel (median 222 over such pixels of a 480 px GL render).
+    CAMERA_WIRE_LEVEL = 222.0
 
-    def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA):
+    def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl",
+                 wire=None, vessel_geom=None):
+        if renderer not in RENDERERS:
+            raise ValueError(f"renderer={renderer!r}; choose one of {RENDERERS}")
         self.size = int(size)
         self.camera = camera
+        self.renderer = renderer
+        self._wire = wire
+        self._vessel_geom = vessel_geom
         self._cache = CameraCache()
+        self._drawer = raster.WireDrawer(self.size, self.RASTER_SUPERSAMPLING)
+        self._scene = None  # per compiled model: projection, element ids, backgrounds
+        self._model = None
 
     def image(self, physics, style: str = "camera") -> np.ndarray:
         """Grayscale view, uint8 (size, size, 1), anti-aliased."""
-        pixels = self.size * self.IMAGE_SUPERSAMPLING
-        rgb = self._cache.render(physics, self.camera, pixels, scene_option=_IMAGE_OPTION)
-        gray = _blocks(rgb.astype(np.float32) @ _LUMA, self.size).mean(axis=2)
-        return gray.round().clip(0, 255).astype(np.uint8)[..., None]
+        if style not in IMAGE_STYLES:
+            raise ValueError(f"image style={style!r}; choose one of {IMAGE_STYLES}")
+        if self.renderer == "gl" and style == "camera":
+            pixels = self.size * self.IMAGE_SUPERSAMPLING
+            rgb = self._cache.render(physics, self.camera, pixels, scene_option=_IMAGE_OPTION)
+            gray = _blocks(rgb.astype(np.float32) @ _LUMA, self.size).mean(axis=2)
+            return gray.round().clip(0, 255).astype(np.uint8)[..., None]
+        scene = self._scene_for(physics)
+        if self.renderer == "gl":  # fluoro: the wire's coverage from a segmentation render
+            covered = self._segmentation(physics) >= 0
+            cover = np.minimum(_blocks(covered, self.size).mean(axis=2) * scene["fluoro_gain"], 1.0)
+        else:
+            width = scene["wire_width_px"] * (scene["fluoro_gain"] if style == "fluoro" else 1.0)
+            cover = self._drawer.coverage(self._wire_uv(physics, scene), width)
+        if style == "fluoro":
+            image = self._fluoro_background(physics, scene) * (1.0 - raster.WIRE_OPACITY * cover)
+        else:
+            background = self._camera_background(physics, scene)
+            image = background + cover * (self.CAMERA_WIRE_LEVEL - background)
+        return image.round().clip(0, 255).astype(np.uint8)[..., None]
 
     def mask(self, physics) -> np.ndarray:
         """Binary mask (0 or 255) of the wire, uint8 (size, size, 1): a pixel is set if
         the wire covers any part of it."""
-        pixels = self.size * self.MASK_SUPERSAMPLING
-        seg = self._cache.render(physics, self.camera, pixels, segmentation=True, scene_option=_MASK_OPTION)
-        covered = _blocks(seg[..., 0] >= 0, self.size).any(axis=2)
+        if self.renderer == "gl":
+            covered = _blocks(self._segmentation(physics) >= 0, self.size).any(axis=2)
+        else:
+            scene = self._scene_for(physics)
+            covered = self._drawer.mask(self._wire_uv(physics, scene), scene["wire_width_px"])
         return np.where(covered, 255, 0).astype(np.uint8)[..., None]
+
+    # -- helpers ---------------------------------------------------------------
+    def _segmentation(self, physics) -> np.ndarray:
+        pixels = self.size * self.MASK_SUPERSAMPLING
+        return self._cache.render(physics, self.camera, pixels, segmentation=True,
+                                  scene_option=_MASK_OPTION)[..., 0]
+
+    def _scene_for(self, physics) -> dict:
+        if self._model is not physics.model.ptr:  # a recompiled model invalidates it all
+            if self._wire is None or self._vessel_geom is None:
+                raise ValueError("the raster renderer and the fluoro style need the wire and the vessel geom")
+            self._model = physics.model.ptr
+            matrix, towards_camera = raster.camera_axes(physics, self.camera)
+            wire_width_px = self._wire.diameter_m * self.size * float(np.linalg.norm(matrix[0, :3]))
+            self._scene = dict(
+                matrix=matrix, towards_camera=towards_camera,
+                bodies=physics.bind(self._wire.segments).element_id.copy(),
+                tip=int(physics.bind(self._wire.tip_site).element_id),
+                wire_width_px=wire_width_px,
+                fluoro_gain=max(1.0, raster.FLUORO_WIRE_MIN_WIDTH_PX / wire_width_px),
+            )
+        return self._scene
+
+    def _wire_uv(self, physics, scene) -> np.ndarray:
+        """The wire's centreline (segment joints, proximal to distal, then the tip) in
+        output pixel coordinates."""
+        points = np.concatenate([physics.data.xpos[scene["bodies"]], physics.data.site_xpos[scene["tip"]][None]])
+        return raster.project(points, scene["matrix"], self.size)
+
+    def _fluoro_background(self, physics, scene) -> np.ndarray:
+        if "fluoro" not in scene:
+            geom = int(physics.bind(self._vessel_geom).element_id)
+            vertices, faces = raster.mesh_in_world(physics, geom)
+            k = self.RASTER_SUPERSAMPLING
+            length, _ = raster.path_length_map(vertices, faces, scene["matrix"], scene["towards_camera"], self.size * k)
+            # Transmission averaged over each output pixel, as a detector pixel integrates it.
+            scene["fluoro"] = 255.0 * raster.reduce_area(raster.fluoro_roadmap(length), self.size)
+        return scene["fluoro"]
+
+    def _camera_background(self, physics, scene) -> np.ndarray:
+        if "camera" not in scene:  # one GL render of everything but the wire
+            pixels = self.size * self.IMAGE_SUPERSAMPLING
+            rgb = self._cache.render(physics, self.camera, pixels, scene_option=_BACKGROUND_OPTION)
+            scene["camera"] = _blocks(rgb.astype(np.float32) @ _LUMA, self.size).mean(axis=2)
+        return scene["camera"]
 
 
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)

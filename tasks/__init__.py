@@ -48,12 +48,17 @@ def build_task(
     aorta_options: dict | None = None,
     aorta_params: dict | None = None,
     image_size: int | None = None,
+    renderer: str | None = None,
+    style: str | None = None,
+    noise_std: float | None = None,
     **task_kwargs,
 ) -> Navigate:
     """The Navigate task for a (target, aorta) pair with entity parameters overridden.
 
     `aorta="custom"` generates an aorta from `aorta_params` (generator fields of
     `cathsim_dmc.anatomy.ArchParams`, optionally `preset`), cached after its first build.
+    `image_size`, `renderer` ("raster" or "gl"), `style` ("camera" or "fluoro") and
+    `noise_std` (grey levels) override the observation preset's image settings.
     """
     validate(task, aorta, obs)
     if aorta == CUSTOM_AORTA:
@@ -62,7 +67,8 @@ def build_task(
         aorta = generated_asset(dict(aorta_params or {}))
     elif aorta_params:
         raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
-    settings = observation_settings(obs, **({"image_size": image_size} if image_size else {}))
+    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std)
+    settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
     contact = dict(channel_solref=wire.contact_solref, channel_solimp=wire.contact_solimp)

@@ -12,7 +12,7 @@ from dm_control.composer.observation import observable
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
-from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView
+from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView, image_noise
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
 MAX_STEPS = 300  # the paper's episode limit
@@ -123,12 +123,22 @@ class Navigate(composer.Task):
         return self._max_steps
 
     @property
+    def top_view(self):
+        """The `TopView` drawing this task's `pixels` and `guidewire_mask`."""
+        return self._top_view
+
+    @property
+    def observation_settings(self) -> ObservationSettings:
+        return self._settings
+
+    @property
     def task_observables(self):
         return self._task_observables
 
     def _build_task_observables(self, settings: ObservationSettings):
         wire_and_robot = list(self._robot.joints) + list(self._guidewire.joints)
-        self._top_view = TopView(settings.image_size)
+        self._top_view = TopView(settings.image_size, renderer=settings.renderer, wire=self._guidewire,
+                                 vessel_geom=self._aorta.visual_geom)
         obs = {
             "joint_pos": observable.MJCFFeature("qpos", wire_and_robot),
             "joint_vel": observable.MJCFFeature("qvel", wire_and_robot),
@@ -140,6 +150,8 @@ class Navigate(composer.Task):
         }
         for name, obs_item in obs.items():
             obs_item.enabled = name in settings.enabled
+        if settings.noise_std > 0:
+            obs["pixels"].corruptor = image_noise(settings.noise_std)
         return obs
 
     # -- episode ---------------------------------------------------------------

@@ -56,8 +56,8 @@ class Aorta(composer.Entity):
             body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
         visual = root.asset.add(
             "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel())
-        body.add("geom", name="lumen", type="mesh", mesh=visual, contype=0, conaffinity=0,
-                 group=geom_groups.VISUAL, rgba=list(rgba))
+        self._visual_geom = body.add("geom", name="lumen", type="mesh", mesh=visual, contype=0, conaffinity=0,
+                                     group=geom_groups.VISUAL, rgba=list(rgba))
         self._sites = {}
         for site_name, pos in {**self._asset.sites, "entry": self._asset.entry_position}.items():
             self._sites[site_name] = body.add(
@@ -70,6 +70,11 @@ class Aorta(composer.Entity):
     @property
     def asset(self) -> AortaAsset:
         return self._asset
+
+    @property
+    def visual_geom(self):
+        """The lumen surface: one mesh geom, drawn in renders (the wall pieces never are)."""
+        return self._visual_geom
 
     @property
     def name(self) -> str:
