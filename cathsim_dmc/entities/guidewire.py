@@ -55,10 +55,10 @@ class Guidewire(composer.Entity):
         diameter_m: float = 0.89e-3,  # 0.035 in, the most common peripheral guidewire
         core_diameter_m: float | None = 0.5e-3,  # nitinol core under the polymer jacket (assumed)
         n_segments: int = 24,  # 14 mm shaft pieces: beam error < 0.3% with midpoint joints
-        n_tip_segments: int = 10,  # 2 mm tip pieces carry the shaped curve
+        n_tip_segments: int = 10,  # 1.5 mm tip pieces carry the shaped curve
         youngs_modulus_pa: float = 40e9,  # nitinol, austenite 40-75 GPa (Duerig et al. 1999); low end for a jacketed core
         tip_youngs_modulus_pa: float = 8e9,  # tapered tip core: 5x softer than the shaft
-        tip_length_m: float = 0.02,
+        tip_length_m: float = 0.015,  # angled tips bend ~1-2 cm from the end; 20 mm held the tip off the branch axis
         tip_shape: str = "angled",
         tip_angle_deg: float = 45.0,
         density_kg_m3: float = 6450.0,  # nitinol
