@@ -58,7 +58,7 @@ class Guidewire(composer.Entity):
         n_tip_segments: int = 10,  # 1.5 mm tip pieces carry the shaped curve
         youngs_modulus_pa: float = 40e9,  # nitinol, austenite 40-75 GPa (Duerig et al. 1999); low end for a jacketed core
         tip_youngs_modulus_pa: float = 8e9,  # tapered tip core: 5x softer than the shaft
-        tip_length_m: float = 0.015,  # angled tips bend ~1-2 cm from the end; 20 mm held the tip off the branch axis
+        tip_length_m: float = 0.015,  # a 20 mm bent tip spans a branch and rides its wall (expert: 93/96 vs 95/96)
         tip_shape: str = "angled",
         tip_angle_deg: float = 45.0,
         density_kg_m3: float = 6450.0,  # nitinol
