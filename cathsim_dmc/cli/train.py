@@ -64,7 +64,9 @@ def run(cfg) -> dict:
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
     env = make_vec_env(task, aorta, obs, cfg.seed, cfg.trainer.n_envs, _task_kwargs(cfg))
     try:
-        result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume))
+        kwargs = _task_kwargs(cfg)
+        result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume),
+                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **kwargs))
     finally:
         env.close()
     log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,

@@ -184,7 +184,46 @@ def _callbacks():
         def _on_training_end(self):
             self.bar.close()
 
-    return EpisodeStats, Checkpoints, Progress
+    class PeriodicEval(BaseCallback):
+        """Every `every` steps: deterministic episodes on a separate env, logged under eval/."""
+
+        def __init__(self, make_env, every: int, episodes: int, seed: int):
+            super().__init__()
+            self.make_env, self.every, self.episodes, self.seed = make_env, int(every), int(episodes), seed
+            self.env = None
+            self._last = 0
+
+        def _on_training_start(self):
+            self._last = self.num_timesteps
+
+        def _on_step(self) -> bool:
+            if self.every <= 0 or self.num_timesteps - self._last < self.every:
+                return True
+            self._last = self.num_timesteps
+            if self.env is None:
+                self.env = self.make_env()
+            returns, successes, lengths = [], [], []
+            for episode in range(self.episodes):
+                obs, info = self.env.reset(seed=self.seed + episode)
+                total, done = 0.0, False
+                while not done:
+                    action, _ = self.model.predict(obs, deterministic=True)
+                    obs, reward, terminated, truncated, info = self.env.step(action)
+                    total += reward
+                    done = terminated or truncated
+                returns.append(total)
+                successes.append(float(info["success"]))
+                lengths.append(info["step"])
+            self.logger.record("eval/mean_return", float(np.mean(returns)))
+            self.logger.record("eval/success_rate", float(np.mean(successes)))
+            self.logger.record("eval/mean_episode_length", float(np.mean(lengths)))
+            return True
+
+        def _on_training_end(self):
+            if self.env is not None:
+                self.env.close()
+
+    return EpisodeStats, Checkpoints, Progress, PeriodicEval
 
 
 def _atomic(path: Path, write) -> None:
@@ -223,7 +262,7 @@ def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str) -> Non
 
 
 def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
-          resume: bool = False) -> TrainResult:
+          resume: bool = False, make_eval_env=None) -> TrainResult:
     """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"]."""
     import torch
     from stable_baselines3 import SAC
@@ -246,9 +285,11 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         model = build_sac(env, algo, seed, trainer["device"], tb_dir)
         write_policy_file(run_dir, obs, task, aorta)
     total = int(trainer["total_timesteps"])
-    EpisodeStats, Checkpoints, Progress = _callbacks()
+    EpisodeStats, Checkpoints, Progress, PeriodicEval = _callbacks()
     checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
     callbacks = [EpisodeStats(), checkpoints]
+    if trainer.get("eval_every", 0) > 0 and make_eval_env is not None:
+        callbacks.append(PeriodicEval(make_eval_env, trainer["eval_every"], trainer["eval_episodes"], 10_000 + seed))
     if trainer.get("progress_bar", True):
         callbacks.append(Progress(total))
     start_steps, t0 = model.num_timesteps, time.perf_counter()

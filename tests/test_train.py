@@ -1,0 +1,85 @@
+"""cathsim-train end to end on tiny budgets: outputs, resume, bad input, memory check."""
+
+import json
+import subprocess
+import sys
+import zipfile
+
+import pytest
+
+TINY = ["obs=internal", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
+        "algo.buffer_size=2000", "trainer.checkpoint_every=30", "trainer.eval_episodes=1", "trainer.video=false",
+        "trainer.progress_bar=false"]
+
+
+def _train(args, cwd):
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=900)
+
+
+def _steps(checkpoint) -> int:
+    with zipfile.ZipFile(checkpoint) as z:
+        return json.loads(z.read("data"))["num_timesteps"]
+
+
+def test_train_then_resume_continues_from_the_last_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    first = _train([*TINY, "trainer.total_timesteps=60", f"hydra.run.dir={run}"], tmp_path)
+    assert first.returncode == 0, first.stderr[-2000:]
+    ckpt = run / "checkpoints"
+    assert {"step_30.zip", "step_60.zip", "last.zip"} <= {p.name for p in ckpt.iterdir()}
+    assert _steps(ckpt / "last.zip") == 60
+    assert list((run / "tensorboard").glob("*/events.out.tfevents.*"))
+    assert (run / "eval" / "metrics.md").read_text().startswith("| Target | Aorta | Policy |")
+    assert json.loads((run / "policy.json").read_text())["obs"] == "internal"
+
+    # A second invocation continues the same run to a larger budget: the step count
+    # carries on from 60 instead of starting again.
+    again = _train([f"resume={run}", "trainer.total_timesteps=90", f"hydra.run.dir={tmp_path}/resume"], tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert _steps(ckpt / "last.zip") == 90 and (ckpt / "step_90.zip").is_file()
+    assert _steps(run / "final_model.zip") == 90
+
+
+def test_trained_checkpoint_evaluates_with_cathsim_eval(tmp_path):
+    run = tmp_path / "run"
+    assert _train([*TINY, "trainer.total_timesteps=30", f"hydra.run.dir={run}"], tmp_path).returncode == 0
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={run}", "episodes=1",
+                             "task.max_steps=10", "video=false", f"hydra.run.dir={tmp_path}/eval"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    report = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert report["policy"] == "run" and report["summary"]["episode_length"]["mean"] == 10
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["obs=xyz"], "enn"),
+    (["algo=ppo"], "sac"),
+    (["aorta=nope"], "type1"),
+    (["trainer.n_envs=0"], "n_envs"),
+    (["trainer.device=tpu"], "cuda"),
+    (["resume=/nonexistent/run"], "resume"),
+    # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
+    (["obs=enn", "algo.buffer_size=1000000000"], "algo.buffer_size"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
+    result = _train([*args, "trainer.total_timesteps=10", f"hydra.run.dir={tmp_path}/bad"], tmp_path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    lines = [line for line in result.stderr.strip().splitlines() if "Warning" not in line and line.strip()]
+    assert len(lines) == 1 and expected in lines[0] and "Traceback" not in result.stderr
+
+
+def test_device_option_reaches_the_model():
+    import torch
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
+
+    env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
+    algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,
+                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
+                net_arch=[32, 32], share_features_extractor=False)
+    assert build_sac(env, algo, 0, "cpu", None).device.type == "cpu"
+    # "cuda" is used where a GPU exists; stable-baselines3 falls back to the CPU elsewhere.
+    assert build_sac(env, algo, 0, "cuda", None).device.type == ("cuda" if torch.cuda.is_available() else "cpu")
+    env.close()
