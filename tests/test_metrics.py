@@ -66,3 +66,29 @@ def test_trajectory_metrics_splits_episodes():
     first, second = metrics.trajectory_metrics(arrays)
     assert first.episode_length == 2 and first.success_pct == 100 and first.spl_pct == pytest.approx(100.0)
     assert second.episode_length == 1 and second.path_length_cm == pytest.approx(1.0) and second.spl_pct == 0
+
+
+def test_trajectory_dataset_round_trip(tmp_path):
+    """Recorder -> npz -> dataset: images scaled to [0, 1], held-out split by whole episodes."""
+    from cathsim_dmc.rl.data import TrajectoryDataset, split_by_episode
+    from cathsim_dmc.trajectory import TrajectoryRecorder
+
+    recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="test", record_observations=True)
+    for episode in range(4):
+        recorder.start_episode(np.zeros(3), 0.1)
+        for step in range(1, 4):
+            info = {"step": step, "tip_position_m": np.zeros(3), "contact_force_n": float(step),
+                    "target_distance_m": 0.1, "success": False}
+            image = np.full((1, 8, 8), 51 * episode, dtype=np.uint8)
+            recorder.record(np.array([0.5, -0.5]), -0.1, info, False, step == 3, {"pixels": image})
+    path = recorder.save(tmp_path / "trajectories.npz")
+    data = TrajectoryDataset(path, inputs=("obs_pixels",), targets=("action", "contact_force_n"))
+    assert len(data) == 12
+    image, action, force = data[4]  # episode 1, step 2
+    assert image.shape == (1, 8, 8) and float(image.max()) == pytest.approx(51 / 255)
+    assert action.tolist() == [0.5, -0.5] and force.item() == 2.0
+    train, test = split_by_episode(data.episode, 0.25, seed=0)
+    assert len(test) == 3 and len(set(data.episode[test])) == 1
+    assert not set(data.episode[test]) & set(data.episode[train])
+    with pytest.raises(ValueError, match="save_observations"):
+        TrajectoryDataset(path, inputs=("obs_guidewire_mask",))
