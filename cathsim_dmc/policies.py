@@ -7,6 +7,7 @@ privileged state through it), learned ones only look at the observation.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -94,7 +95,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             model = load_bc_policy(model_path)
         else:
             raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
-    except (OSError, KeyError, RuntimeError, EOFError) as error:
+    except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile) as error:
         raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
     return CheckpointPolicy(model, info["obs"])
 

@@ -1,5 +1,6 @@
 """cathsim-eval end to end, and its one-line errors."""
 
+import json
 import subprocess
 import sys
 
@@ -26,11 +27,47 @@ def test_eval_writes_trajectories_and_video(tmp_path):
     gif = tmp_path / "run" / "video.gif"
     # The wire moves every step, so the GIF keeps (nearly) one frame per step.
     assert iio.improps(gif, index=None).n_images >= 10
+    report = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert report["summary"]["episode_length"]["mean"] == 12 and report["summary"]["success_pct"]["mean"] == 0
+    # Path length is the tip's travel, so at least its net climb.
+    climb_cm = 100 * (data["tip_position_m"][-1, 1] - data["start_tip_position_m"][0, 1])
+    assert report["summary"]["path_length_cm"]["mean"] >= climb_cm
+    for name in ("metrics.md", "path.png", "forces.png"):
+        assert (tmp_path / "run" / name).stat().st_size > 0
+
+
+def test_expert_reaches_the_lcca(tmp_path):
+    result = _run(["task=lcca", "aorta=type1", "policy=expert", "episodes=1", "video=false",
+                   f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    report = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert report["summary"]["success_pct"]["mean"] == 100
+    assert 0 < report["summary"]["spl_pct"]["mean"] <= 100
+
+
+def test_multirun_writes_one_combined_table(tmp_path):
+    result = _run(["-m", "task=bca,lcca", "aorta=type1", "policy=forward", "episodes=1", "task.max_steps=3",
+                   "video=false", f"hydra.sweep.dir={tmp_path}/sweep"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    lines = (tmp_path / "sweep" / "metrics.md").read_text().strip().splitlines()
+    assert len(lines) == 4 and lines[2].startswith("| BCA |") and lines[3].startswith("| LCCA |")
 
 
 def test_unknown_choice_is_one_line_and_exit_2(tmp_path):
-    for bad, valid in (("task=xyz", "bca"), ("aorta=xyz", "type1"), ("policy=xyz", "forward")):
+    for bad, valid in (("task=xyz", "bca"), ("aorta=xyz", "type1"), ("policy=xyz", "forward"),
+                       ("policy=/no/such/checkpoint.zip", "checkpoint"), ("video_format=avi", "mp4")):
         result = _run([bad, f"hydra.run.dir={tmp_path}/bad"], tmp_path)
         assert result.returncode == 2, result.stderr
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and valid in lines[0] and "Traceback" not in result.stderr
+
+
+def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
+    run = tmp_path / "fake_run"
+    run.mkdir()
+    (run / "policy.json").write_text('{"algo": "sac", "obs": "internal"}')
+    (run / "final_model.zip").write_bytes(b"not a zip file")
+    result = _run([f"policy={run}", "episodes=1", f"hydra.run.dir={tmp_path}/out"], tmp_path)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "not a readable checkpoint" in lines[0]
