@@ -25,7 +25,7 @@ class Aorta(composer.Entity):
         self,
         asset: str | Path = "type1",
         friction: float = 0.1,  # wet, smooth endothelium / silicone phantom against a coated wire
-        solref: tuple = (0.02, 1.0),  # 2 timesteps at 10 ms; MuJoCo raises less to 2 dt
+        solref: tuple = (0.01, 1.0),  # 2 timesteps at the 5 ms default; MuJoCo raises less to 2 dt
         solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
         rgba: tuple = (0.85, 0.45, 0.45, 0.35),  # see-through, so the wire inside is visible
         name: str | None = None,
