@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer, mjcf
 
-PHYSICS_TIMESTEP_S = 0.01  # the guidewire's default; tasks take the wire's own
+PHYSICS_TIMESTEP_S = 0.005  # the guidewire's default; tasks take the wire's own
 BLOOD_DENSITY_KG_M3 = 1055.0  # whole blood (Kenner 1989)
 BLOOD_VISCOSITY_PA_S = 0.0035  # whole blood at high shear, 3.5-4 mPa s
 
@@ -40,6 +40,10 @@ class OperatingArena(composer.Arena):
             timestep=timestep_s, integrator="implicitfast", cone="elliptic",
             gravity=[0, 0, -9.81],
         )
+        # One contact per wire-wall pair instead of ~1.4: the convex wall prisms are
+        # thin and a capsule meets them at a point; 20% faster in wall contact with
+        # the same penetration and no escapes (physics probe).
+        root.option.flag.multiccd = "disable"
         if blood_drag:
             # implicitfast would differentiate the fluid forces every step (measured 9x
             # slower); Euler keeps joint damping implicit and costs the same as before.

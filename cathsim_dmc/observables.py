@@ -151,14 +151,14 @@ class TopView:
     CAMERA_WIRE_LEVEL = 222.0
 
     def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl",
-                 wire=None, vessel_geom=None):
+                 wire=None, vessel_geom_id=None):
         if renderer not in RENDERERS:
             raise ValueError(f"renderer={renderer!r}; choose one of {RENDERERS}")
         self.size = int(size)
         self.camera = camera
         self.renderer = renderer
         self._wire = wire
-        self._vessel_geom = vessel_geom
+        self._vessel_geom_id = vessel_geom_id  # physics -> geom id of the lumen mesh
         self._cache = CameraCache()
         self._drawer = raster.WireDrawer(self.size, self.RASTER_SUPERSAMPLING)
         self._scene = None  # per compiled model: projection, element ids, backgrounds
@@ -205,7 +205,7 @@ class TopView:
 
     def _scene_for(self, physics) -> dict:
         if self._model is not physics.model.ptr:  # a recompiled model invalidates it all
-            if self._wire is None or self._vessel_geom is None:
+            if self._wire is None or self._vessel_geom_id is None:
                 raise ValueError("the raster renderer and the fluoro style need the wire and the vessel geom")
             self._model = physics.model.ptr
             matrix, towards_camera = raster.camera_axes(physics, self.camera)
@@ -227,7 +227,7 @@ class TopView:
 
     def _fluoro_background(self, physics, scene) -> np.ndarray:
         if "fluoro" not in scene:
-            geom = int(physics.bind(self._vessel_geom).element_id)
+            geom = int(self._vessel_geom_id(physics))
             vertices, faces = raster.mesh_in_world(physics, geom)
             k = self.RASTER_SUPERSAMPLING
             length, _ = raster.path_length_map(vertices, faces, scene["matrix"], scene["towards_camera"], self.size * k)

@@ -34,7 +34,7 @@ def main():
     for i in range(args.steps):
         env.step(np.array([1.0, 0.6 if i < args.steps // 2 else -0.6]))
     task, physics = env.task, env.physics
-    views = {r: TopView(80, renderer=r, wire=task.guidewire, vessel_geom=task.aorta.visual_geom)
+    views = {r: TopView(80, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
              for r in ("gl", "raster")}
     images = {(r, c): (v.mask(physics) if c == "mask" else v.image(physics, c))[..., 0]
               for r, v in views.items() for c in ("camera", "fluoro", "mask")}

@@ -73,7 +73,8 @@ def build_task(
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
     contact = dict(channel_solref=wire.contact_solref, channel_solimp=wire.contact_solimp)
     follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **{**contact, **(robot or {})})
-    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp)
+    # The wall goes into the compiled model directly (NavigationEnvironment; fast build).
+    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp, hulls_in_mjcf=False)
     vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})
     return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)
 

@@ -6,9 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import dm_env.specs
-from dm_control import composer
+from dm_control import composer, mjcf
+from dm_control.mujoco import wrapper
 from dm_control.composer.observation import observable
 
+from cathsim_dmc import model_cache
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
@@ -138,7 +140,7 @@ class Navigate(composer.Task):
     def _build_task_observables(self, settings: ObservationSettings):
         wire_and_robot = list(self._robot.joints) + list(self._guidewire.joints)
         self._top_view = TopView(settings.image_size, renderer=settings.renderer, wire=self._guidewire,
-                                 vessel_geom=self._aorta.visual_geom)
+                                 vessel_geom_id=self._aorta.visual_geom_id)
         obs = {
             "joint_pos": observable.MJCFFeature("qpos", wire_and_robot),
             "joint_vel": observable.MJCFFeature("qvel", wire_and_robot),
@@ -168,7 +170,7 @@ class Navigate(composer.Task):
         self._wire_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
-        self._vessel_mask[physics.bind(self._aorta.collision_geoms).element_id] = True
+        self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
@@ -243,13 +245,34 @@ class NavigationEnvironment(composer.Environment):
 
     composer ends a diverged episode with discount 0 (as if terminal); a diverged
     simulation says nothing about the task, so the episode is cut with discount 1.
+
+    Building is fast: an aorta built with ``hulls_in_mjcf=False`` gets its wall added
+    to a `mujoco.MjSpec` of the compiled scene (see `Aorta.add_geoms`), the compiled
+    model is cached as MJB (keyed by the scene, the wall and the MuJoCo version), and
+    the model compiled here is kept for the first reset (composer compiles a second
+    time otherwise; no entity changes its MJCF per episode).
     """
 
-    def __init__(self, task: Navigate, **kwargs):
+    def __init__(self, task: Navigate, cache_models: bool = True, **kwargs):
         kwargs.setdefault("raise_exception_on_physics_error", False)
         kwargs.setdefault("strip_singleton_obs_buffer_dim", True)
         kwargs.setdefault("recompile_mjcf_every_episode", False)
+        self._cache_models = bool(cache_models)
         super().__init__(task, **kwargs)
+        if not self._recompile_mjcf_every_episode:
+            self._mjcf_never_compiled = False
+
+    def _recompile_physics(self):
+        aorta = self._task.aorta
+        if aorta.hulls_in_mjcf:
+            return super()._recompile_physics()
+        physics = getattr(self, "_physics", None)
+        if physics:
+            physics.free()
+        root = self._task.root_entity.mjcf_model
+        model = model_cache.compile_model(root, aorta.add_geoms, aorta.geoms_key, cache=self._cache_models)
+        self._physics = mjcf.Physics.from_model(wrapper.MjModel(model))
+        self._physics.legacy_step = self._legacy_step
 
     def step(self, action):
         timestep = super().step(action)

@@ -92,7 +92,7 @@ def test_lumen_watertight_outward_and_clean(name):
     n_thin = int((q["min_angle"] < 10).sum())
     print(f"\n{name}: {len(lumen.faces)} triangles, edges {q['edge_min'] / MM:.2f}-{q['edge_max'] / MM:.2f} mm "
           f"(mean {q['edge_mean'] / MM:.2f}), min angle {q['min_angle'].min():.1f} deg, {n_thin} below 10 deg")
-    assert 6_000 < len(lumen.faces) < 20_000
+    assert 3_000 < len(lumen.faces) < 20_000
     assert n_thin == 0
     # The cap is the flat disc of the open end and nothing else; one prism per other face.
     assert 10 < cap.sum() < 200

@@ -22,7 +22,7 @@ def bent():
     for i in range(60):
         env.step(np.array([1.0, 0.6 if i < 30 else -0.6]))
     task = env.task
-    views = {r: TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom=task.aorta.visual_geom)
+    views = {r: TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
              for r in ("gl", "raster")}
     return env, views
 
@@ -86,7 +86,7 @@ def test_raster_vessel_silhouette_matches_gl(bent):
 def test_fluoro_roadmap_thickness_and_dark_wire(bent):
     env, views = bent
     physics = env.physics
-    geom = physics.bind(env.task.aorta.visual_geom).element_id
+    geom = env.task.aorta.visual_geom_id(physics)
     vertices, faces = raster.mesh_in_world(physics, geom)
     matrix, towards_camera = raster.camera_axes(physics, "top")
     length, crossings = raster.path_length_map(vertices, faces, matrix, towards_camera, 4 * SIZE)
@@ -106,7 +106,7 @@ def test_fluoro_roadmap_thickness_and_dark_wire(bent):
 def test_seeded_episode_images_are_reproducible():
     env = tasks.load("bca", "type1", obs="enn", style="fluoro", noise_std=4.0, seed=0)
     task = env.task
-    others = {(r, s): TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom=task.aorta.visual_geom)
+    others = {(r, s): TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
               for r in ("gl", "raster") for s in ("camera", "fluoro")}
 
     def episode():

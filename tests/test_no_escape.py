@@ -75,4 +75,6 @@ def test_no_escape_short_then_divergence_truncates(aorta):
 def test_no_escape_long(aorta):
     """The issue's protocol: 10,000 random steps, then 300 at full insertion and rotation."""
     monitor, _ = _run(aorta, random_steps=10_000, max_steps=300)
+    print(f"\n{aorta}: worst point {monitor.worst_outside_m * 1e3:.2f} mm outside the lumen "
+          f"(allowed {(monitor._radius + ALLOWED_PENETRATION_M) * 1e3:.3f})")
     assert monitor.escapes == 0, f"worst point {monitor.worst_outside_m * 1e3:.2f} mm outside the lumen"

@@ -177,14 +177,39 @@ def _canonical(vertices: np.ndarray, faces: np.ndarray):
     return vertices[order], f
 
 
+# A coarse mesh can fold a triangle where the lumen curves tightly (seen at 6-8 mm
+# edges on some arches); the surface is then rebuilt with edges this much shorter.
+FOLD_RETRY_EDGE_FACTOR = 0.9
+MIN_RETRY_EDGE_M = 0.003
+
+
+class FoldedSurfaceError(RuntimeError):
+    pass
+
+
 def build_lumen(model: ArchModel, grid: SDFGrid | None = None) -> Lumen:
-    """Watertight, outward-oriented lumen surface with the open-end cap flagged."""
-    p = model.params
+    """Watertight, outward-oriented lumen surface with the open-end cap flagged.
+
+    Meshed at ``edge_length_m``; if that folds a triangle, at edges 10% shorter each
+    time down to 3 mm (deterministic: the same parameters give the same surface).
+    """
     grid = sdf_grid(model) if grid is None else grid
+    edge = model.params.edge_length_m
+    while True:
+        try:
+            return _build_lumen(model, grid, edge)
+        except FoldedSurfaceError:
+            edge *= FOLD_RETRY_EDGE_FACTOR
+            if edge < MIN_RETRY_EDGE_M:
+                raise
+
+
+def _build_lumen(model: ArchModel, grid: SDFGrid, edge: float) -> Lumen:
+    p = model.params
     shape = np.array(grid.values.shape)
     lo = grid.origin + grid.spacing
     hi = grid.origin + grid.spacing * (shape - 2)
-    man = _level_set(grid, lo, hi, p.edge_length_m)
+    man = _level_set(grid, lo, hi, edge)
     # Open inferior end: cut square to the descending aorta (which runs along +y
     # there) at the open-end plane; the part above is kept and capped flat.
     c = model.open_end_center
@@ -204,9 +229,9 @@ def build_lumen(model: ArchModel, grid: SDFGrid | None = None) -> Lumen:
     remap = -np.ones(len(v), dtype=np.int64)
     remap[used] = np.arange(len(used))
     v, f = v[used], remap[f]
-    v, f = _clean_rim(v, f, c[[0, 2]], y_cut, p.edge_length_m)
-    y_band = y_cut + 3 * p.edge_length_m
-    v, f = collapse_short_edges(v, f, grid, SHORT_EDGE_FRACTION * p.edge_length_m, frozen=v[:, 1] < y_band)
+    v, f = _clean_rim(v, f, c[[0, 2]], y_cut, edge)
+    y_band = y_cut + 3 * edge
+    v, f = collapse_short_edges(v, f, grid, SHORT_EDGE_FRACTION * edge, frozen=v[:, 1] < y_band)
     v, f = _refine_curved(v, f, grid, p.max_dihedral_deg, p.refine_levels, y_band)
     v = _relax(v, f, grid, frozen=v[:, 1] < y_band, iterations=p.relax_iterations)
     v, f = fix_slivers(v, f, grid, frozen=v[:, 1] < y_band)
@@ -229,7 +254,7 @@ def _check_surface(v, f, cap, grid: SDFGrid):
     if np.any(edge_faces[:, 1] < 0):
         raise RuntimeError("Lumen surface is not closed.")
     if not _faces_follow_surface(v, f[~cap], grid, min_cos=0.0):
-        raise RuntimeError("Lumen surface has a folded triangle; try another edge_length_m.")
+        raise FoldedSurfaceError("Lumen surface has a folded triangle; try another edge_length_m.")
 
 
 def _edge_faces(f):

@@ -4,6 +4,11 @@ The asset folder (format in the README) holds the lumen surface as one visual me
 the wall as convex collision pieces, named sites and centerlines. Collision pieces sit
 in geom group 3, which observation renders never draw; the visual mesh is one geom in
 group 1, so drawing the vessel costs one mesh whatever the wall's piece count.
+
+With ``hulls_in_mjcf=False`` the wall and the visual mesh stay out of the MJCF tree
+(thousands of mesh elements take seconds to build, serialise and parse) and
+`add_geoms` puts them into a `mujoco.MjSpec` of the compiled scene instead, in the same
+order, so the model is the same; `NavigationEnvironment` builds that way.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import mujoco
 from dm_control import composer, mjcf
 
 from cathsim_dmc.anatomy import AortaAsset, load_asset
@@ -25,10 +31,11 @@ class Aorta(composer.Entity):
         self,
         asset: str | Path = "type1",
         friction: float = 0.1,  # wet, smooth endothelium / silicone phantom against a coated wire
-        solref: tuple = (0.02, 1.0),  # 2 timesteps at 10 ms; MuJoCo raises less to 2 dt
+        solref: tuple = (0.01, 1.0),  # 2 timesteps at the 5 ms default; MuJoCo raises less to 2 dt
         solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
         rgba: tuple = (0.85, 0.45, 0.45, 0.35),  # see-through, so the wire inside is visible
         name: str | None = None,
+        hulls_in_mjcf: bool = True,
     ):
         """Builds the anatomy.
 
@@ -41,23 +48,30 @@ class Aorta(composer.Entity):
           solimp: contact impedance of the wall (see MuJoCo's solimp).
           rgba: colour of the visual mesh.
           name: model name (default: the asset's name).
+          hulls_in_mjcf: put the wall pieces and the visual mesh into the MJCF model
+            (works with any composer environment). False leaves them to `add_geoms`,
+            which an environment must call on the scene's spec before compiling (as
+            `NavigationEnvironment` does); a physics without them raises at reset.
         """
         self._asset: AortaAsset = load_asset(resolve_asset(asset))
         self._mjcf_root = mjcf.RootElement(model=name or self._asset.name)
         root = self._mjcf_root
-        root.default.geom.set_attributes(
+        self._wall = dict(
             contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, condim=3, margin=0,
             friction=[friction, 0.005, 0.0001], solref=list(solref), solimp=list(solimp),
             group=geom_groups.COLLISION, rgba=[0.5, 0.5, 0.5, 0.3],
         )
+        self._visual = dict(contype=0, conaffinity=0, group=geom_groups.VISUAL, rgba=list(rgba))
+        self.hulls_in_mjcf = bool(hulls_in_mjcf)
         body = root.worldbody
-        for i, hull in enumerate(self._asset.hulls):
-            mesh = root.asset.add("mesh", name=f"hull{i}", vertex=np.asarray(hull, dtype=float).ravel())
-            body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
-        visual = root.asset.add(
-            "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel())
-        self._visual_geom = body.add("geom", name="lumen", type="mesh", mesh=visual, contype=0, conaffinity=0,
-                                     group=geom_groups.VISUAL, rgba=list(rgba))
+        if self.hulls_in_mjcf:
+            root.default.geom.set_attributes(**self._wall)
+            for i, hull in enumerate(self._asset.hulls):
+                mesh = root.asset.add("mesh", name=f"hull{i}", vertex=np.asarray(hull, dtype=float).ravel())
+                body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
+            visual = root.asset.add(
+                "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel())
+            body.add("geom", name="lumen", type="mesh", mesh=visual, **self._visual)
         self._sites = {}
         for site_name, pos in {**self._asset.sites, "entry": self._asset.entry_position}.items():
             self._sites[site_name] = body.add(
@@ -67,14 +81,52 @@ class Aorta(composer.Entity):
     def mjcf_model(self):
         return self._mjcf_root
 
+    def _prefix(self) -> str:
+        """The namespace of this entity's elements in the compiled model ("type1/")."""
+        entry = self._sites["entry"].full_identifier
+        return entry[: -len("entry")]
+
+    def add_geoms(self, spec: mujoco.MjSpec) -> None:
+        """Adds the wall pieces and the visual mesh to `spec` (a spec of the compiled
+        scene that holds this aorta without them), named as `hulls_in_mjcf` names them."""
+        if self.hulls_in_mjcf:
+            raise ValueError("this Aorta already has its wall in the MJCF model")
+        prefix = self._prefix()
+        # The attachment frame is a body named after the namespace; unattached, the world.
+        body = spec.body(prefix) if prefix else spec.worldbody
+        if body is None:
+            body = spec.worldbody
+
+        def add(name, vertices, faces, settings):
+            mesh = spec.add_mesh(name=prefix + name)
+            mesh.uservert = np.asarray(vertices, dtype=float).ravel()
+            if faces is not None:
+                mesh.userface = np.asarray(faces).ravel()
+            geom = body.add_geom(name=prefix + name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=prefix + name)
+            for key, value in settings.items():
+                setattr(geom, key, value)
+
+        for i, hull in enumerate(self._asset.hulls):
+            add(f"hull{i}", hull, None, self._wall)
+        # As in the MJCF path, the visual geom inherits the wall's settings but draws only.
+        add("lumen", self._asset.visual_vertices, self._asset.visual_faces, {**self._wall, **self._visual})
+
+    @property
+    def geoms_key(self) -> bytes:
+        """Identifies what `add_geoms` adds (for caching compiled models)."""
+        asset = self._asset
+        return b"".join([repr((self._wall, self._visual)).encode(), asset.hull_vertices.tobytes(),
+                         asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
+
+    def initialize_episode(self, physics, random_state):
+        if not self.hulls_in_mjcf and mujoco.mj_name2id(
+                physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, self._prefix() + "hull0") < 0:
+            raise RuntimeError("Aorta(hulls_in_mjcf=False) has no wall in this physics: build the environment with "
+                               "NavigationEnvironment, or call aorta.add_geoms on the scene's spec")
+
     @property
     def asset(self) -> AortaAsset:
         return self._asset
-
-    @property
-    def visual_geom(self):
-        """The lumen surface: one mesh geom, drawn in renders (the wall pieces never are)."""
-        return self._visual_geom
 
     @property
     def name(self) -> str:
@@ -108,4 +160,17 @@ class Aorta(composer.Entity):
 
     @composer.cached_property
     def collision_geoms(self):
+        """The wall pieces as MJCF elements (empty with `hulls_in_mjcf=False`)."""
         return tuple(g for g in self._mjcf_root.find_all("geom") if g.name.startswith("hull"))
+
+    def wall_geom_ids(self, physics) -> np.ndarray:
+        """Geom ids of the wall pieces in `physics`, whichever way the wall was added."""
+        model = physics.model.ptr
+        prefix = self._prefix()
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}hull{i}")
+               for i in range(self._asset.hull_count)]
+        return np.asarray([i for i in ids if i >= 0], dtype=int)
+
+    def visual_geom_id(self, physics) -> int:
+        """Geom id of the visual lumen mesh in `physics` (-1 if absent)."""
+        return int(mujoco.mj_name2id(physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, self._prefix() + "lumen"))

@@ -40,7 +40,7 @@ class FollowerRobot(composer.Entity):
         wire_radius_m: float = 0.445e-3,
         servo_stiffness_n_m: float = 2e4,
         servo_stiffness_nm_rad: float = 50.0,
-        channel_solref: tuple = (0.02, 1.0),
+        channel_solref: tuple = (0.01, 1.0),  # 2 timesteps at the 5 ms default
         channel_solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
         name: str = "follower",
     ):

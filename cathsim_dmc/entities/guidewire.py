@@ -66,7 +66,7 @@ class Guidewire(composer.Entity):
         contact_solref: tuple | None = None,
         contact_solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
         mass_scale: float | None = None,
-        physics_timestep_s: float = 0.01,
+        physics_timestep_s: float = 0.005,
         damping_ratio: float = 1.0,
         name: str = "guidewire",
     ):
@@ -99,13 +99,18 @@ class Guidewire(composer.Entity):
           mass_scale: quasi-static mass scaling of the segments. A wire in blood is
             overdamped and its inertia negligible; heavier segments make wall contacts
             stiff enough to stop snap-through tunnelling without changing statics.
-            Default 100 x (timestep / 2 ms)^2: MuJoCo's contact stiffness scales with
-            mass / solref^2 and solref is 2 timesteps, so this keeps the contact as
-            stiff as the escape-free 2 ms setting (measured: x2500 at 10 ms gave 0
-            escapes and <= 0.5 mm penetration where x625 let the wire out).
+            Default 100 x (timestep / 2 ms)^2 (x625 at 5 ms): MuJoCo's contact
+            stiffness scales with mass / solref^2 and solref is 2 timesteps, so this
+            keeps the contact as stiff as the escape-free 2 ms setting (measured at
+            10 ms: x2500 gave 0 escapes and <= 0.5 mm penetration where x625 let the
+            wire out).
           physics_timestep_s: the simulation timestep the wire is tuned for (sets
-            armature, damping, contact time constant and mass scaling). 10 ms: with
-            24 shaft segments 15-20x faster in wall contact than 2 ms with 64.
+            armature, damping, contact time constant and mass scaling). 5 ms: with
+            24 shaft segments about 15x faster in wall contact than 2 ms with 64, with
+            the insertion response of the 2 ms wire. 10 ms is a fast option (about 2x
+            faster again) whose 2500x heavier wire lags the 5 N insertion drive by
+            ~2 mm after 1 s of full insertion and drifts from the 5 ms tip paths by
+            10-20 mm RMS.
           damping_ratio: joint damping as a fraction of critical damping.
           name: model name.
         """

@@ -1,0 +1,177 @@
+"""A privileged scripted expert: steers the angled tip along the centerline into the target.
+
+It reads simulator state an agent does not see (tip and tip-base positions, the shaft
+direction, the asset's centerline to the target and its lumen radius) and does what an
+interventionalist does with an angled wire:
+
+* **aim**: the bend of the tip, seen from the base of the tip curve, is turned (by
+  rotating the wire at the robot; a torsionally stiff wire turns its tip 1:1) towards
+  a look-ahead point on the centerline. Aiming from the tip point would be wrong: the
+  tip's offset from the shaft is its own bend.
+* **advance only when aimed**: insertion is gated on the angle between the bend and the
+  look-ahead direction; on straight stretches any orientation will do.
+* **back off when lost**: if the tip leaves the centerline's lumen (a wrong branch) or
+  progress along the centerline stalls, retract a few millimetres and aim again.
+
+Past the other ostia the look-ahead follows the arch's inner curve, which keeps the bend
+away from the branches on the outer curve; at the target ostium the centerline turns
+into the branch and the bend follows it. Every length is relative to the asset's lumen
+radius or the wire, so no per-aorta constant is tuned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class _Centerline:
+    """A polyline with arc length, closest-point queries and interpolation."""
+
+    def __init__(self, points, radius, extension_m=0.03):
+        points = np.asarray(points, dtype=float)
+        radius = np.asarray(radius, dtype=float)
+        # Continued straight past the target, so that a tip which overshoots has an arc
+        # length beyond `length` (the target) instead of being clamped to it.
+        end_direction = points[-1] - points[-2]
+        end_direction /= np.linalg.norm(end_direction)
+        self.points = np.vstack([points, points[-1] + extension_m * end_direction])
+        self.radius = np.append(radius, radius[-1])
+        seg = np.diff(self.points, axis=0)
+        self._seg = seg
+        self._seg_len = np.linalg.norm(seg, axis=1)
+        self.arclength = np.concatenate([[0.0], np.cumsum(self._seg_len)])
+        self.length = float(self.arclength[-2])  # arc length of the target
+
+    def locate(self, p, s_min=-np.inf, s_max=np.inf):
+        """(arc length, depth outside the tube) of p, over arc lengths in [s_min, s_max].
+
+        The tube is the centerline +- the lumen radius. The arc length chosen is where p
+        lies deepest inside it, so near an ostium a tip in the parent vessel is placed in
+        the parent, not in the (closer but narrower) start of the branch. A negative
+        depth means inside the lumen of the path to the target.
+        """
+        a = self.points[:-1]
+        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / np.maximum(self._seg_len**2, 1e-18), 0, 1)
+        s = self.arclength[:-1] + t * self._seg_len
+        d = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1) - np.interp(s, self.arclength, self.radius)
+        d = np.where((s >= s_min) & (s <= s_max), d, np.inf)
+        i = int(np.argmin(d))
+        return float(s[i]), float(d[i])
+
+    def at(self, s):
+        s = float(np.clip(s, 0.0, self.arclength[-1]))
+        return np.array([np.interp(s, self.arclength, self.points[:, k]) for k in range(3)])
+
+    def radius_at(self, s):
+        return float(np.interp(s, self.arclength, self.radius))
+
+
+class CenterlineExpert:
+    """Scripted expert policy: `action = expert(observation, env)`.
+
+    `env` is a `cathsim_dmc.gym.CathSimEnv` (or anything with `.task` and `.physics`).
+
+    Args:
+      lookahead_radii: look-ahead distance along the centerline, in lumen radii.
+      aligned_rad: insertion is allowed when the bend is within this angle of the aim.
+      stall_steps: steps without progress (`min_progress_m`) before backing off.
+      retract_steps: control steps of full retraction when backing off.
+      lost_margin_m: the tip counts as lost (in a wrong branch) this far outside the
+        lumen of the path to the target.
+    """
+
+    def __init__(self, lookahead_radii: float = 1.5, aligned_rad: float = np.deg2rad(35),
+                 stall_steps: int = 6, min_progress_m: float = 1e-3, retract_steps: int = 2,
+                 lost_margin_m: float = 2e-3):
+        self.lookahead_radii = lookahead_radii
+        self.aligned_rad = aligned_rad
+        self.stall_steps = stall_steps
+        self.min_progress_m = min_progress_m
+        self.retract_steps = retract_steps
+        self.lost_margin_m = lost_margin_m
+        self.settle_steps = 3
+        self.sweep_rate = np.deg2rad(12)  # per control step: a turn in 30 steps
+        self._sweep_depths_m = (0.0, 0.002, -0.002, 0.004)
+        self._task = None
+        self._episode_key = None
+
+    def reset(self, env):
+        task = env.task
+        self._task = task
+        self._line = _Centerline(*task.aorta.asset.centerlines[task.target_name])
+        self._s = self._line.locate(task.tip_position_m(env.physics))[0]
+        self._best_s = self._s
+        self._since_progress = 0
+        self._retracting = 0
+        self._at_depth = 0
+        self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
+        self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
+
+    def __call__(self, observation, env) -> np.ndarray:
+        task, physics = env.task, env.physics
+        key = (id(task), id(physics.model.ptr))
+        if task.step_count == 0 or key != self._episode_key:
+            self._episode_key = key
+            self.reset(env)
+        line = self._line
+        tip = task.tip_position_m(physics)
+        base_site = physics.bind(task.guidewire.tip_base_site)
+        base = base_site.xpos.copy()
+        shaft = base_site.xmat.reshape(3, 3)[:, 2].copy()  # the wire's axis where the curve begins
+
+        # Progress: closest centerline point to the tip, searched near the last one so the
+        # estimate cannot jump to a parallel stretch of vessel.
+        s, outside = line.locate(tip, self._s - 0.01, self._s + 0.03)
+        self._s = s
+        radius = line.radius_at(s)
+        remaining = line.length - s
+        if s > self._best_s + self.min_progress_m:
+            self._best_s, self._since_progress = s, 0
+        else:
+            self._since_progress += 1
+        lost = outside > self.lost_margin_m
+        if remaining < self.min_progress_m:
+            self._since_progress = 0  # at the target's depth: only the aim is left to fix
+        if self._retracting == 0 and (lost or self._since_progress >= self.stall_steps):
+            self._retracting = self.retract_steps
+            self._since_progress = 0
+
+        # Aim: the bend (tip relative to the tip base, across the shaft) towards the
+        # look-ahead point (relative to the tip base, across the shaft).
+        # Near the target, aim at the target itself: the last look-ahead would overshoot.
+        aim_point = line.at(min(s + self.lookahead_radii * radius, line.length))
+        bend = _across(tip - base, shaft)
+        aim = _across(aim_point - base, shaft)
+        aim_norm, bend_norm = np.linalg.norm(aim), np.linalg.norm(bend)
+        straight_ahead = aim_norm < 0.25 * np.linalg.norm(aim_point - base)
+        if bend_norm < 1e-9 or aim_norm < 1e-9:
+            angle = 0.0
+        else:
+            angle = float(np.arctan2(np.dot(shaft, np.cross(bend, aim)), np.dot(bend, aim)))
+        rotation = np.clip(angle / self._max_rotation_step, -1.0, 1.0)
+
+        if remaining < self._max_insertion_step:
+            self._at_depth += 1
+        else:
+            self._at_depth = 0
+        if self._at_depth > self.settle_steps:
+            # At the target's depth but not within reach: the tip's own bend holds it off
+            # the axis. Sweep the bend round while the depth steps through a few
+            # millimetres either side of the target; some pose of the sweep gets there.
+            phase = (self._at_depth - self.settle_steps) * self.sweep_rate
+            depth = self._sweep_depths_m[int(phase // (2 * np.pi)) % len(self._sweep_depths_m)]
+            insertion = float(np.clip((remaining + depth) / self._max_insertion_step, -1.0, 1.0))
+            return np.array([insertion, self.sweep_rate / self._max_rotation_step], dtype=np.float32)
+        if self._retracting > 0:
+            self._retracting -= 1
+            insertion = -1.0
+        elif straight_ahead or abs(angle) < self.aligned_rad:
+            # Full speed, but no further than the target along the centerline.
+            insertion = float(np.clip(remaining / self._max_insertion_step, -1.0, 1.0))
+        else:
+            insertion = 0.0
+        return np.array([insertion, rotation], dtype=np.float32)
+
+
+def _across(v, axis):
+    return v - np.dot(v, axis) * axis
