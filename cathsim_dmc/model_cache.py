@@ -5,7 +5,8 @@ create, serialise to XML and parse again; added to a spec of the scene they cost
 fraction of that, and the compiled model, saved as MJB, loads in milliseconds the next
 time. The cache key covers the scene XML, what the extra geoms are made from and the
 MuJoCo version, so any change to them compiles afresh. The cache lives next to the
-generated aortas: ``$CATHSIM_DMC_CACHE/models`` or ``~/.cache/cathsim_dmc/models``.
+generated aortas: ``$CATHSIM_DMC_CACHE/models`` or ``~/.cache/cathsim_dmc/models``, and
+keeps the `MAX_CACHED_MODELS` most recently used models (about 15 MB each).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from typing import Callable
 import mujoco
 
 from cathsim_dmc.anatomy import cache_root
+
+MAX_CACHED_MODELS = 16
 
 
 def model_cache_dir() -> pathlib.Path:
@@ -40,7 +43,9 @@ def compile_model(mjcf_root, add_geoms: Callable[[mujoco.MjSpec], None], key: by
     path = model_cache_dir() / f"{digest.hexdigest()[:32]}.mjb"
     if cache and path.is_file():
         try:
-            return mujoco.MjModel.from_binary_path(str(path))
+            model = mujoco.MjModel.from_binary_path(str(path))
+            os.utime(path)  # most recently used
+            return model
         except Exception:  # a truncated or foreign file: compile again and replace it
             pass
     spec = mujoco.MjSpec.from_string(xml, assets=assets)
@@ -54,6 +59,17 @@ def compile_model(mjcf_root, add_geoms: Callable[[mujoco.MjSpec], None], key: by
             os.close(fd)
             mujoco.mj_saveModel(model, tmp, None)
             os.replace(tmp, path)
+            prune(path.parent)
         except OSError:
             pass  # a read-only cache only costs speed
     return model
+
+
+def prune(folder: pathlib.Path, keep: int = MAX_CACHED_MODELS) -> None:
+    """Deletes all but the `keep` most recently used models in `folder`."""
+    models = sorted(folder.glob("*.mjb"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    for old in models[keep:]:
+        try:
+            old.unlink()
+        except OSError:
+            pass  # another process got there first

@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 from dm_control import composer
 
-from cathsim_dmc import tasks
+from cathsim_dmc import model_cache, tasks
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta
 
 
 @pytest.fixture
-def model_cache(tmp_path, monkeypatch):
+def models_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("CATHSIM_DMC_CACHE", str(tmp_path))
     return tmp_path / "models"
 
@@ -24,12 +24,12 @@ def rollout(env, n_steps=30):
     return env.task.tip_position_m(env.physics)
 
 
-def test_fast_build_matches_the_mjcf_build_and_caches(model_cache):
+def test_fast_build_matches_the_mjcf_build_and_caches(models_dir):
     stock = tasks.load("bca", "type1", seed=0, aorta_options=dict(hulls_in_mjcf=True))
     fast = tasks.load("bca", "type1", seed=0)  # compiles and fills the cache
     assert stock.task.aorta.hulls_in_mjcf and not fast.task.aorta.hulls_in_mjcf
     cached = tasks.load("bca", "type1", seed=0)  # loads the MJB
-    assert len(list(model_cache.glob("*.mjb"))) == 1
+    assert len(list(models_dir.glob("*.mjb"))) == 1
     for env in (fast, cached):
         m, s = env.physics.model, stock.physics.model
         assert (m.ngeom, m.nmesh, m.nbody, m.nv) == (s.ngeom, s.nmesh, s.nbody, s.nv)
@@ -41,7 +41,7 @@ def test_fast_build_matches_the_mjcf_build_and_caches(model_cache):
     np.testing.assert_array_equal(rollout(cached), tip)
 
 
-def test_reset_does_not_recompile(model_cache):
+def test_reset_does_not_recompile(models_dir):
     env = tasks.load("bca", "type1", seed=0)
     physics = env.physics
     for _ in range(3):
@@ -56,3 +56,13 @@ def test_light_aorta_in_a_plain_environment_fails_loudly():
     env = composer.Environment(composer.NullTask(arena))
     with pytest.raises(RuntimeError, match="no wall"):
         env.reset()
+
+
+def test_model_cache_keeps_the_most_recently_used(tmp_path):
+    import os
+
+    for i in range(5):
+        (tmp_path / f"{i}.mjb").write_bytes(b"x")
+        os.utime(tmp_path / f"{i}.mjb", ns=(i * 10**9, i * 10**9))
+    model_cache.prune(tmp_path, keep=2)
+    assert sorted(p.name for p in tmp_path.glob("*.mjb")) == ["3.mjb", "4.mjb"]
