@@ -44,9 +44,10 @@ BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomP
 class CheckpointPolicy:
     """A trained agent loaded from a checkpoint; acts deterministically on observations."""
 
-    def __init__(self, model, obs_preset: str):
+    def __init__(self, model, obs_preset: str, image_options: dict | None = None):
         self.model = model
         self.obs_preset = obs_preset
+        self.image_options = dict(image_options or {})  # renderer, style it was trained with
 
     def __call__(self, observation, env) -> np.ndarray:
         action, _ = self.model.predict(observation, deterministic=True)
@@ -97,7 +98,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
     except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile) as error:
         raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
-    return CheckpointPolicy(model, info["obs"])
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"))
 
 
 def make_policy(name: str, seed: int = 0):

@@ -131,6 +131,11 @@ def write_video(path, frames, fps: int = 10) -> Path:
     return path
 
 
+def image_options(obs_cfg) -> dict:
+    """Renderer and style of the image observations, from an `obs` config node."""
+    return {key: obs_cfg[key] for key in ("renderer", "style") if obs_cfg.get(key) is not None}
+
+
 def evaluate(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
@@ -142,10 +147,12 @@ def evaluate(cfg) -> dict:
         raise ValueError(f"video_format={cfg.video_format!r}; choose one of ['gif', 'mp4']")
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     policy = make_policy(str(cfg.policy), seed=cfg.seed)
-    obs = policy.obs_preset if isinstance(policy, CheckpointPolicy) else cfg.obs
+    obs, images = cfg.obs.name, image_options(cfg.obs)
+    if isinstance(policy, CheckpointPolicy):  # evaluated on what it was trained on
+        obs, images = policy.obs_preset, {**images, **policy.image_options}
     params = cfg.aorta.get("params")
     extra = {"aorta_params": OmegaConf.to_container(params)} if params is not None else {}
-    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=obs, **extra,
+    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=obs, **extra, **images,
                      delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward,
                      dense=cfg.task.dense, max_steps=cfg.task.max_steps)
     name = Path(str(cfg.policy)).name if isinstance(policy, CheckpointPolicy) else str(cfg.policy)

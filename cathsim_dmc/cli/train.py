@@ -21,8 +21,10 @@ log = logging.getLogger("cathsim-train")
 def _task_kwargs(cfg) -> dict:
     from omegaconf import OmegaConf
 
+    from cathsim_dmc.cli.eval import image_options
+
     kwargs = dict(delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward, dense=cfg.task.dense,
-                  max_steps=cfg.task.max_steps)
+                  max_steps=cfg.task.max_steps, **image_options(cfg.obs))
     params = cfg.aorta.get("params")
     if params is not None:
         kwargs["aorta_params"] = OmegaConf.to_container(params)
@@ -33,7 +35,7 @@ def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.cli.eval import evaluate_policy
+    from cathsim_dmc.cli.eval import evaluate_policy, image_options
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy
     from cathsim_dmc.rl.train import make_vec_env, train
@@ -66,7 +68,8 @@ def run(cfg) -> dict:
     try:
         kwargs = _task_kwargs(cfg)
         result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume),
-                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **kwargs))
+                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **kwargs),
+                       image_options=image_options(cfg.obs))
     finally:
         env.close()
     log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
@@ -74,7 +77,8 @@ def run(cfg) -> dict:
 
     eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **_task_kwargs(cfg))
     try:
-        report = evaluate_policy(eval_env, CheckpointPolicy(result.model, obs), f"sac-{obs}", cfg.trainer.eval_episodes,
+        report = evaluate_policy(eval_env, CheckpointPolicy(result.model, obs, image_options(cfg.obs)), f"sac-{obs}",
+                                 cfg.trainer.eval_episodes,
                                  seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video)
     finally:
         eval_env.close()

@@ -255,14 +255,16 @@ class TrainResult:
     seconds: float
 
 
-def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str) -> None:
+def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_options: dict | None = None) -> None:
+    """policy.json: what evaluating the checkpoint needs (observation preset and image options)."""
     from cathsim_dmc.policies import POLICY_FILE
 
-    (Path(run_dir) / POLICY_FILE).write_text(json.dumps({"algo": "sac", "obs": cfg_obs, "task": task, "aorta": aorta}))
+    info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta}
+    (Path(run_dir) / POLICY_FILE).write_text(json.dumps(info))
 
 
 def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
-          resume: bool = False, make_eval_env=None) -> TrainResult:
+          resume: bool = False, make_eval_env=None, image_options: dict | None = None) -> TrainResult:
     """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"]."""
     import torch
     from stable_baselines3 import SAC
@@ -283,7 +285,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
             model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
     else:
         model = build_sac(env, algo, seed, trainer["device"], tb_dir)
-        write_policy_file(run_dir, obs, task, aorta)
+        write_policy_file(run_dir, obs, task, aorta, image_options)
     total = int(trainer["total_timesteps"])
     EpisodeStats, Checkpoints, Progress, PeriodicEval = _callbacks()
     checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
