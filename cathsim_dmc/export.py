@@ -12,6 +12,10 @@ then turns every in-memory mesh into an STL file before `MjSpec.to_xml`:
 - a wall piece is a point cloud whose convex hull MuJoCo takes for collisions, so its
   STL holds that hull's triangles (outward facing): the same vertices, the same hull.
 
+MuJoCo's XML writer keeps 6 significant digits, so `scene.xml` is dm_control's own
+XML of the scene (17 digits) with the added meshes and geoms spliced in: the reloaded
+model matches the environment's in every number, not only to 6 digits.
+
 The file also carries a keyframe `start`: the state after a seeded reset (wire at the
 entry, robot retracted), which `simulate` loads from its "Key" panel.
 """
@@ -19,6 +23,7 @@ entry, robot retracted), which `simulate` loads from its "Key" panel.
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import mujoco
@@ -57,10 +62,14 @@ def hull_faces(vertices) -> np.ndarray:
     return faces
 
 
+def task_root(env):
+    return env.task.root_entity.mjcf_model
+
+
 def scene_spec(env) -> mujoco.MjSpec:
     """The spec the environment `env` (a NavigationEnvironment) compiles its model from."""
     task = env.task
-    root = task.root_entity.mjcf_model
+    root = task_root(env)
     spec = mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
     if not task.aorta.hulls_in_mjcf:
         task.aorta.add_geoms(spec)
@@ -97,17 +106,35 @@ def export_scene(env, out_dir) -> Path:
         mesh.file = file_name
         mesh.uservert = []
         mesh.userface = []
+    # to_xml compiles, which reads the STLs back: a file MuJoCo cannot load fails here.
+    spec.meshdir = str(mesh_dir.resolve())
+    added = ET.fromstring(spec.to_xml())
+    # MuJoCo's XML writer keeps 6 significant digits (a wire segment's mass 0.1430035 ->
+    # 0.143003), so the scene is dm_control's own XML (17 digits) with only the added
+    # meshes and geoms, whose attributes are short decimals, taken from the spec's XML.
+    scene_root = ET.fromstring(task_root(env).to_xml_string(precision=17))
+    names = {mesh.name for mesh in spec.meshes}
+    compiler = scene_root.find("compiler")
+    if compiler is None:
+        compiler = ET.Element("compiler")
+        scene_root.insert(0, compiler)
+    compiler.set("meshdir", MESH_DIR)
+    asset = scene_root.find("asset")
+    if asset is None:
+        asset = ET.Element("asset")
+        scene_root.insert(list(scene_root).index(scene_root.find("worldbody")), asset)
+    asset.extend(m for m in added.iter("mesh") if m.get("name") in names)
+    for parent in [added.find("worldbody"), *added.iter("body")]:  # where add_geoms put them
+        geoms = [g for g in parent.findall("geom") if g.get("mesh") in names]
+        if geoms:
+            name = parent.get("name")
+            body = scene_root.find(f".//body[@name='{name}']") if parent.tag == "body" else scene_root.find("worldbody")
+            body.extend(geoms)
     physics = env.physics
-    spec.add_key(name=START_KEY, time=0.0, qpos=np.array(physics.data.qpos), qvel=np.array(physics.data.qvel),
-                 ctrl=np.array(physics.data.ctrl), act=np.array(physics.data.act))
-    # Compiling reads the STLs back: a file MuJoCo cannot load fails here, not in a user's app.
-    # (to_xml compiles too, so meshdir stays absolute until the text is written.)
-    absolute = str(mesh_dir.resolve())
-    spec.meshdir = absolute
-    xml = spec.to_xml()
-    attribute = f'meshdir="{absolute}"'
-    if xml.count(attribute) != 1:
-        raise RuntimeError(f"cannot find {attribute} in the written XML")
+    keyframe = ET.SubElement(scene_root, "keyframe")
+    values = {"qpos": physics.data.qpos, "qvel": physics.data.qvel, "ctrl": physics.data.ctrl, "act": physics.data.act}
+    ET.SubElement(keyframe, "key", name=START_KEY, **{k: " ".join(repr(float(x)) for x in v) for k, v in values.items() if v.size})
+    ET.indent(scene_root, space="  ")
     scene = out_dir / SCENE_FILE
-    scene.write_text(xml.replace(attribute, f'meshdir="{MESH_DIR}"'))
+    ET.ElementTree(scene_root).write(scene, encoding="unicode")
     return scene

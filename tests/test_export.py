@@ -30,10 +30,14 @@ def test_exported_scene_reloads_and_steps(aorta, tmp_path):
     assert (model.nq, model.nu, model.nmeshface) == (original.nq, original.nu, original.nmeshface)
     np.testing.assert_allclose(model.geom_pos, original.geom_pos, atol=1e-8)
     np.testing.assert_allclose(model.geom_rbound, original.geom_rbound, atol=1e-8)
+    for field in ("body_mass", "body_inertia", "jnt_stiffness", "dof_armature", "dof_damping", "geom_friction",
+                  "geom_solref", "geom_solimp", "actuator_gainprm", "qpos0"):
+        np.testing.assert_array_equal(getattr(model, field), getattr(original, field), err_msg=field)
+    assert (model.opt.timestep, model.opt.integrator) == (original.opt.timestep, original.opt.integrator)
 
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, START_KEY))
-    np.testing.assert_allclose(data.qpos, env.physics.data.qpos, atol=1e-5)  # the XML keeps ~6 digits
+    np.testing.assert_array_equal(data.qpos, env.physics.data.qpos)
     data.ctrl[:] = 1.0  # push the wire in
     for _ in range(100):
         mujoco.mj_step(model, data)
