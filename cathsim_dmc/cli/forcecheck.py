@@ -1,0 +1,199 @@
+"""cathsim-forcecheck: are simulated contact forces distributed like measured ones?
+
+    cathsim-forcecheck outputs/eval/bca-type1/<run>/trajectories.npz --reference measured.csv --out check
+    cathsim-forcecheck run1/trajectories.npz run2/trajectories.npz --mean 0.3 --std 0.1 --seed 0 --out check
+
+The simulated samples are the `contact_force_n` rows of the trajectory files (one per
+control step; `--contact-only` keeps the steps with a contact). The reference is either
+a CSV of measured forces in newtons (`--column` by header name or 0-based index, else
+the first column) or a normal distribution the user states with `--mean` and `--std`,
+sampled with `--seed` (`--samples` draws, default as many as simulated). No reference
+values live in this code: they are the user's measurement.
+
+Runs the two-sided Mann-Whitney U test (`scipy.stats.mannwhitneyu`) and writes
+forcecheck.json, forcecheck.md and force_cdf.png (empirical CDFs of both) into `--out`.
+Exit status 0 on success, 2 with one `error:` line on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cathsim_dmc.cli._common import fail
+
+RESULT_JSON = "forcecheck.json"
+RESULT_MD = "forcecheck.md"
+CDF_PLOT = "force_cdf.png"
+
+
+def simulated_forces(paths, contact_only: bool = False) -> np.ndarray:
+    """All `contact_force_n` samples of the trajectory files at `paths`."""
+    from cathsim_dmc.trajectory import load_trajectories
+
+    if not paths:
+        raise ValueError("no trajectory file given")
+    samples = np.concatenate([np.asarray(load_trajectories(p)["contact_force_n"], dtype=float).ravel() for p in paths])
+    if contact_only:
+        samples = samples[samples > 0.0]
+    if samples.size == 0:
+        raise ValueError("the trajectory files hold no force samples" + (" with contact" if contact_only else ""))
+    return _finite(samples, "simulated forces")
+
+
+def measured_forces(csv_path, column: str | None = None) -> np.ndarray:
+    """One column of a CSV of measured forces (newtons); a non-numeric first row is a header."""
+    path = Path(csv_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no reference CSV at {path}")
+    rows = [row for row in csv.reader(path.read_text().splitlines()) if any(cell.strip() for cell in row)]
+    if not rows:
+        raise ValueError(f"{path} is empty")
+    header = None
+    try:
+        [float(cell) for cell in rows[0] if cell.strip()]
+    except ValueError:
+        header, rows = [cell.strip() for cell in rows[0]], rows[1:]
+    index = 0
+    if column is not None:
+        if header is not None and column in header:
+            index = header.index(column)
+        elif column.isdigit():
+            index = int(column)
+        else:
+            raise ValueError(f"{path} has no column {column!r}" + (f"; columns: {header}" if header else ""))
+    try:
+        values = np.asarray([float(row[index]) for row in rows if len(row) > index and row[index].strip()])
+    except ValueError as error:
+        raise ValueError(f"{path} column {index}: {error}") from None
+    if values.size == 0:
+        raise ValueError(f"{path} holds no force values in column {index}")
+    return _finite(values, str(path))
+
+
+def normal_reference(mean_n: float, std_n: float, count: int, seed: int) -> np.ndarray:
+    """`count` draws from Normal(mean_n, std_n), the user's summary of a measurement."""
+    if not np.isfinite(mean_n) or not np.isfinite(std_n) or std_n <= 0:
+        raise ValueError(f"--std must be positive and both finite (got mean {mean_n}, std {std_n})")
+    if count < 1:
+        raise ValueError(f"--samples must be at least 1 (got {count})")
+    return np.random.default_rng(seed).normal(mean_n, std_n, size=count)
+
+
+def _finite(values, what):
+    if not np.isfinite(values).all():
+        raise ValueError(f"{what} contain non-finite values")
+    return values
+
+
+def mann_whitney(simulated, reference) -> dict:
+    """Two-sided Mann-Whitney U test with the summaries the report shows."""
+    from scipy.stats import mannwhitneyu
+
+    result = mannwhitneyu(simulated, reference, alternative="two-sided")
+    summary = lambda x: {"n": int(x.size), "mean_n": float(np.mean(x)), "median_n": float(np.median(x)),
+                         "std_n": float(np.std(x, ddof=1)) if x.size > 1 else 0.0}
+    return {
+        "test": "Mann-Whitney U, two-sided", "u_statistic": float(result.statistic), "p_value": float(result.pvalue),
+        # P(simulated > reference) + P(equal)/2: 0.5 when neither tends to be larger.
+        "common_language_effect": float(result.statistic) / (simulated.size * reference.size),
+        "simulated": summary(simulated), "reference": summary(reference),
+    }
+
+
+def markdown(result: dict, alpha: float) -> str:
+    s, r = result["simulated"], result["reference"]
+    verdict = ("not distinguishable" if result["p_value"] >= alpha else "different") + f" at alpha = {alpha:g}"
+    lines = [
+        f"{result['test']}: U = {result['u_statistic']:.6g}, p = {result['p_value']:.4g} ({verdict}); "
+        f"P(sim > ref) = {result['common_language_effect']:.3f}",
+        f"Reference: {result['reference_source']}",
+        "",
+        "| Samples | n | mean (N) | median (N) | std (N) |",
+        "|---|---|---|---|---|",
+        f"| Simulated | {s['n']} | {s['mean_n']:.4f} | {s['median_n']:.4f} | {s['std_n']:.4f} |",
+        f"| Reference | {r['n']} | {r['mean_n']:.4f} | {r['median_n']:.4f} | {r['std_n']:.4f} |",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def cdf_plot(simulated, reference, out_path, title: str = "") -> Path:
+    from cathsim_dmc.plots import _pyplot
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for values, label, colour in ((simulated, "simulated", "tab:blue"), (reference, "reference", "tab:orange")):
+        x = np.sort(values)
+        ax.step(x, np.arange(1, x.size + 1) / x.size, where="post", label=f"{label} (n={x.size})", color=colour)
+    ax.set_xlabel("contact force (N)")
+    ax.set_ylabel("cumulative probability")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return Path(out_path)
+
+
+def force_check(trajectories, out_dir, reference_csv=None, column=None, mean_n=None, std_n=None,
+                samples=None, seed: int = 0, contact_only: bool = False, alpha: float = 0.05) -> dict:
+    """Compare the trajectories' forces with the reference; write the report into `out_dir`."""
+    if (reference_csv is None) == (mean_n is None and std_n is None):
+        raise ValueError("give the reference as --reference CSV or as --mean and --std (one of the two)")
+    simulated = simulated_forces(trajectories, contact_only)
+    if reference_csv is not None:
+        reference = measured_forces(reference_csv, column)
+        source = f"measured, {reference_csv}" + (f" column {column}" if column is not None else "")
+    else:
+        if mean_n is None or std_n is None:
+            raise ValueError("a normal reference needs both --mean and --std")
+        count = simulated.size if samples is None else int(samples)
+        reference = normal_reference(float(mean_n), float(std_n), count, seed)
+        source = f"normal, mean {mean_n:g} N, std {std_n:g} N, {count} draws, seed {seed}"
+    result = mann_whitney(simulated, reference)
+    result.update(reference_source=source, alpha=alpha, contact_only=contact_only,
+                  trajectories=[str(p) for p in trajectories])
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / RESULT_JSON).write_text(json.dumps(result, indent=2))
+    (out_dir / RESULT_MD).write_text(markdown(result, alpha))
+    cdf_plot(simulated, reference, out_dir / CDF_PLOT,
+             f"Mann-Whitney U = {result['u_statistic']:.4g}, p = {result['p_value']:.3g}")
+    return result
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line and exit 2, like the other tools
+        fail(message)
+
+
+def main(argv=None):
+    parser = _Parser(prog="cathsim-forcecheck", description=__doc__.split("\n\n")[0])
+    parser.add_argument("trajectories", nargs="+", type=Path, help="trajectories.npz files (cathsim-eval, teleop)")
+    parser.add_argument("--reference", type=Path, help="CSV of measured forces in newtons")
+    parser.add_argument("--column", help="CSV column: header name or 0-based index (default: the first)")
+    parser.add_argument("--mean", type=float, help="mean of a normal reference (N)")
+    parser.add_argument("--std", type=float, help="standard deviation of a normal reference (N)")
+    parser.add_argument("--samples", type=int, help="draws from the normal reference (default: as many as simulated)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the draws")
+    parser.add_argument("--contact-only", action="store_true", help="keep only steps with a contact (force > 0)")
+    parser.add_argument("--alpha", type=float, default=0.05, help="significance level for the verdict line")
+    parser.add_argument("--out", type=Path, default=Path("forcecheck"), help="output folder")
+    args = parser.parse_args(argv)
+    try:
+        force_check(args.trajectories, args.out, args.reference, args.column, args.mean, args.std, args.samples,
+                    args.seed, args.contact_only, args.alpha)
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        fail(str(error).strip("'\""))
+    print((args.out / RESULT_MD).read_text(), end="")
+    print(f"results in {args.out}")
+
+
+if __name__ == "__main__":
+    main()
