@@ -28,11 +28,13 @@ def test_cantilever_deflection_matches_euler_bernoulli(n_segments):
     model, data = physics.model.ptr, physics.data.ptr
     tip_body = physics.bind(wire.segments[-1]).element_id
     tip_site = physics.bind(wire.tip_site).element_id
-    for _ in range(3000):  # damped to rest under a constant transverse tip load
+    for step in range(30_000):  # damped to rest under a constant transverse tip load
         data.qfrc_applied[:] = 0
         mujoco.mj_applyFT(model, data, np.array([force, 0, 0]), np.zeros(3), data.site_xpos[tip_site].copy(),
                           tip_body, data.qfrc_applied)
         mujoco.mj_step(model, data)
+        if step > 100 and np.abs(data.qvel).max() < 1e-8:
+            break
     assert np.abs(data.qvel).max() < 1e-8, "not at rest"
     deflection = data.site_xpos[tip_site][0]
     analytic = force * length**3 / (3 * modulus * np.pi * wire.core_diameter_m**4 / 64)
