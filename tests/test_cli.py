@@ -71,3 +71,14 @@ def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "not a readable checkpoint" in lines[0]
+
+
+def test_bench_prints_a_row_per_setting(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bench", "aortas=[type1]", "presets=[internal]",
+                             "steps=5", "repeats=1", f"hydra.run.dir={tmp_path}/bench"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    rows = [line for line in result.stdout.splitlines() if line.startswith("| type1 | internal")]
+    assert len(rows) == 1
+    steps_per_s = float(rows[0].split("|")[5])
+    assert steps_per_s > 0

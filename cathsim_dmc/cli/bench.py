@@ -1,8 +1,8 @@
 """cathsim-bench: speed of the navigation environments on this machine.
 
     cathsim-bench                                   # bca/type1, obs internal and enn
-    cathsim-bench aortas=[type1,type2] obs=[internal] steps=300
-    cathsim-bench obs=[enn] renderers=[raster,gl] styles=[camera,fluoro]
+    cathsim-bench aortas=[type1,type2] presets=[internal] steps=300
+    cathsim-bench presets=[enn] renderers=[raster,gl] styles=[camera,fluoro]
 
 For each (aorta, observation preset), in a fresh process: env build time (construct +
 first reset, which compiles), reset time without recompilation, control steps/s and
@@ -119,7 +119,7 @@ def run(cfg) -> list:
 
     for aorta in cfg.aortas:
         tasks.validate(cfg.task, aorta)
-    for obs in cfg.obs:
+    for obs in cfg.presets:
         tasks.validate(cfg.task, cfg.aortas[0], obs)
     for name, values, valid in (("renderers", cfg.renderers, RENDERERS), ("styles", cfg.styles, IMAGE_STYLES)):
         for value in values:
@@ -134,7 +134,7 @@ def run(cfg) -> list:
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
     for aorta in cfg.aortas:
-        for obs in cfg.obs:
+        for obs in cfg.presets:
             has_images = bool(OBSERVATION_PRESETS[obs].enabled & {"pixels", "guidewire_mask"})
             image_settings = ([(r, s) for r in cfg.renderers for s in cfg.styles] if has_images else [("-", "-")])
             for renderer, style in image_settings:
