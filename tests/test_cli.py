@@ -74,7 +74,7 @@ def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
 
 
 def test_bench_prints_a_row_per_setting(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bench", "aortas=[type1]", "presets=[internal]",
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bench", "task=lcca", "aortas=[type1]", "presets=[internal]",
                              "steps=5", "repeats=1", f"hydra.run.dir={tmp_path}/bench"],
                             cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr

@@ -118,15 +118,15 @@ def run(cfg) -> list:
     from cathsim_dmc.observables import IMAGE_STYLES, OBSERVATION_PRESETS, RENDERERS
 
     for aorta in cfg.aortas:
-        tasks.validate(cfg.task, aorta)
+        tasks.validate(cfg.task.target, aorta)
     for obs in cfg.presets:
-        tasks.validate(cfg.task, cfg.aortas[0], obs)
+        tasks.validate(cfg.task.target, cfg.aortas[0], obs)
     for name, values, valid in (("renderers", cfg.renderers, RENDERERS), ("styles", cfg.styles, IMAGE_STYLES)):
         for value in values:
             if value not in valid:
                 raise ValueError(f"{name}: {value!r} is not one of {list(valid)}")
     context = multiprocessing.get_context("spawn")
-    print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task}, "
+    print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task.target}, "
           f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}")
     header = ("| aorta | obs | renderer | style | control steps/s | x real time | raw mj_step steps/s | overhead "
               "| contacts | build s | reset ms | peak RSS MB | image ms |")
@@ -142,7 +142,7 @@ def run(cfg) -> list:
                 for _ in range(cfg.repeats):
                     with context.Pool(1) as pool:
                         runs.append(pool.apply(_measure_in_subprocess,
-                                               ((cfg.task, aorta, obs, cfg.steps, renderer, style),)))
+                                               ((cfg.task.target, aorta, obs, cfg.steps, renderer, style),)))
                 med = {k: (statistics.median(r[k] for r in runs) if isinstance(runs[0][k], float) else runs[0][k])
                        for k in runs[0]}
                 rows.append(med)
