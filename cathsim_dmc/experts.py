@@ -92,12 +92,10 @@ class CenterlineExpert:
         self.settle_steps = 3
         self.sweep_rate = np.deg2rad(12)  # per control step: a turn in 30 steps
         self._sweep_depths_m = (0.0, 0.002, -0.002, 0.004)
-        self._task = None
         self._episode_key = None
 
     def reset(self, env):
         task = env.task
-        self._task = task
         self._line = _Centerline(*task.aorta.asset.centerlines[task.target_name])
         self._s = self._line.locate(task.tip_position_m(env.physics))[0]
         self._best_s = self._s

@@ -300,7 +300,6 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), log_interval=1,
                     tb_log_name="sac", reset_num_timesteps=not resume)
     seconds = time.perf_counter() - t0
-    checkpoints.model = model
     save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
     _atomic(run_dir / FINAL_MODEL, lambda tmp: model.save(tmp))
     return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
