@@ -87,6 +87,12 @@ def run(cfg) -> dict:
     return report
 
 
+def _algo_choices() -> list:
+    from cathsim_dmc.paths import conf_root
+
+    return sorted(path.stem for path in (conf_root() / "algo").glob("*.yaml"))
+
+
 def main():
     from cathsim_dmc.cli._common import run_hydra
     from cathsim_dmc.observables import OBSERVATION_PRESETS
@@ -94,7 +100,7 @@ def main():
 
     run_hydra(run, "train", {
         "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
-        "algo": lambda: ["sac"],
+        "algo": _algo_choices,
     })
 
 
