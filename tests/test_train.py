@@ -5,6 +5,7 @@ import subprocess
 import sys
 import zipfile
 
+import numpy as np
 import pytest
 
 TINY = ["obs=internal", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
@@ -83,3 +84,22 @@ def test_device_option_reaches_the_model():
     # "cuda" is used where a GPU exists; stable-baselines3 falls back to the CPU elsewhere.
     assert build_sac(env, algo, 0, "cuda", None).device.type == ("cuda" if torch.cuda.is_available() else "cpu")
     env.close()
+
+
+def test_seed_sweep_through_submitit_local_writes_one_table(tmp_path):
+    # The cluster path (conf/hydra/launcher/slurm.yaml) differs from this one only in
+    # the submitit executor: each run is a separate process, pickled and launched.
+    sweep = tmp_path / "sweep"
+    result = _train(["-m", "hydra/launcher=local", "seed=0,1", *TINY, "trainer.total_timesteps=30",
+                     "trainer.eval_episodes=2", f"hydra.sweep.dir={sweep}"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    runs = sorted(p.parent.parent.name for p in sweep.glob("*/eval/metrics.json"))
+    assert runs == ["bca-type1-internal-seed0", "bca-type1-internal-seed1"]
+    rows = (sweep / "metrics.md").read_text().strip().splitlines()[2:]
+    assert [r.split(" | ")[2] for r in rows] == ["sac-internal (seed 0)", "sac-internal (seed 1)",
+                                                 "sac-internal (2 seeds)"]
+    # The pooled row is over all four episodes of both seeds.
+    reports = json.loads((sweep / "metrics.json").read_text())
+    paths = [e["path_length_cm"] for r in reports for e in r["per_episode"]]
+    assert len(paths) == 4
+    assert rows[2].split(" | ")[4] == f"{sum(paths) / 4:.1f} ± {float(np.std(paths)):.1f}"

@@ -77,27 +77,49 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
 
 
 def _row_label(label: dict) -> dict:
-    return {"Target": label["task"].upper(), "Aorta": label["aorta"], "Policy": label["policy"]}
+    policy = label["policy"] if label.get("seed") is None else f"{label['policy']} (seed {label['seed']})"
+    return {"Target": label["task"].upper(), "Aorta": label["aorta"], "Policy": policy}
 
 
 def combine_reports(folder) -> str:
-    """One Markdown table from every metrics.json under `folder` (a multirun sweep)."""
+    """One Markdown table from every report under `folder` (a multirun sweep).
+
+    Reads `<job>/metrics.json` (cathsim-eval) and `<job>/eval/metrics.json`
+    (cathsim-train). Runs that differ only by seed also get a pooled row over all their
+    episodes, labelled with the number of seeds.
+    """
     from cathsim_dmc import metrics
 
-    reports = [json.loads(p.read_text()) for p in sorted(Path(folder).glob(f"*/{METRICS_JSON}"))]
+    folder = Path(folder)
+    paths = sorted(folder.glob(f"*/{METRICS_JSON}")) + sorted(folder.glob(f"*/eval/{METRICS_JSON}"))
+    reports = [json.loads(p.read_text()) for p in paths]
     if not reports:
         return ""
-    reports.sort(key=lambda r: (r["task"], r["aorta"], r["policy"]))
-    table = metrics.markdown_table([(_row_label(r), r["summary"]) for r in reports])
-    (Path(folder) / METRICS_MD).write_text(table)
-    (Path(folder) / METRICS_JSON).write_text(json.dumps(reports, indent=2))
+    reports.sort(key=lambda r: (r["task"], r["aorta"], r["policy"], r.get("seed") is None, r.get("seed") or 0))
+    rows = [(_row_label(r), r["summary"]) for r in reports]
+    seeded = {}
+    for r in reports:
+        if r.get("seed") is not None:
+            seeded.setdefault((r["task"], r["aorta"], r["policy"]), []).append(r)
+    for (task, aorta, policy), group in sorted(seeded.items()):
+        if len(group) < 2:
+            continue
+        episodes = [metrics.EpisodeMetrics(**e) for r in group for e in r["per_episode"]]
+        label = {"task": task, "aorta": aorta, "policy": f"{policy} ({len(group)} seeds)"}
+        rows.append((_row_label(label), metrics.summarize(episodes)))
+    table = metrics.markdown_table(rows)
+    (folder / METRICS_MD).write_text(table)
+    (folder / METRICS_JSON).write_text(json.dumps(reports, indent=2))
     return table
 
 
 def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out_dir, video: bool = True,
                     video_size: int = 240, video_format: str = "gif", save_observations: bool = False,
-                    show_progress: bool = True) -> dict:
-    """Evaluate `policy` on `env` (a CathSimEnv) and write the full report into `out_dir`."""
+                    show_progress: bool = True, label: dict | None = None) -> dict:
+    """Evaluate `policy` on `env` (a CathSimEnv) and write the full report into `out_dir`.
+
+    `label` adds fields to the report (cathsim-train adds its training seed).
+    """
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
     out_dir = Path(out_dir)
@@ -110,7 +132,7 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     recorder.save(out_dir / "trajectories.npz")
     if frames:
         write_video(out_dir / f"video.{video_format}", frames)
-    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name}
+    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name, **(label or {})}
     return write_report(recorder.arrays(), task.aorta.asset, label, out_dir, summaries)
 
 

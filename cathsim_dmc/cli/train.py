@@ -79,7 +79,8 @@ def run(cfg) -> dict:
     try:
         report = evaluate_policy(eval_env, CheckpointPolicy(result.model, obs, image_options(cfg.obs)), f"sac-{obs}",
                                  cfg.trainer.eval_episodes,
-                                 seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video)
+                                 seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
+                                 label={"seed": int(cfg.seed)})
     finally:
         eval_env.close()
     print((run_dir / "eval" / "metrics.md").read_text(), end="")
