@@ -103,3 +103,11 @@ def test_seed_sweep_through_submitit_local_writes_one_table(tmp_path):
     paths = [e["path_length_cm"] for r in reports for e in r["per_episode"]]
     assert len(paths) == 4
     assert rows[2].split(" | ")[4] == f"{sum(paths) / 4:.1f} ± {float(np.std(paths)):.1f}"
+
+
+def test_slurm_launcher_config_composes_with_the_shipped_settings(tmp_path):
+    result = _train(["hydra/launcher=slurm", "hydra.launcher.partition=gpu", "--cfg", "hydra", "-p",
+                     "hydra.launcher"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "SlurmLauncher" in result.stdout and "partition: gpu" in result.stdout
+    assert "gpus_per_node: 1" in result.stdout and "mem_gb: 32" in result.stdout
