@@ -61,13 +61,46 @@ def test_trained_checkpoint_evaluates_with_cathsim_eval(tmp_path):
     (["trainer.device=tpu"], "cuda"),
     (["resume=/nonexistent/run"], "resume"),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
-    (["obs=enn", "algo.buffer_size=1000000000"], "algo.buffer_size"),
+    (["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"], "algo.buffer_size"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
-    result = _train([*args, "trainer.total_timesteps=10", f"hydra.run.dir={tmp_path}/bad"], tmp_path)
+    budget = [] if any(a.startswith("trainer.total_timesteps=") for a in args) else ["trainer.total_timesteps=10"]
+    result = _train([*args, *budget, f"hydra.run.dir={tmp_path}/bad"], tmp_path)
     assert result.returncode == 2, result.stderr[-2000:]
     lines = [line for line in result.stderr.strip().splitlines() if "Warning" not in line and line.strip()]
     assert len(lines) == 1 and expected in lines[0] and "Traceback" not in result.stderr
+
+
+def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.rl.train import build_sac, grow_replay_buffer, make_env_fn
+
+    env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
+    algo = dict(learning_rate=3e-4, buffer_size=40, learning_starts=100, batch_size=8, tau=0.005, gamma=0.99,
+                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
+                net_arch=[32, 32], share_features_extractor=False)
+    model = build_sac(env, algo, 0, "cpu", None)
+    model.learn(25)
+    held = model.replay_buffer.observations["joint_pos"][:25].copy()
+    grow_replay_buffer(model, 100)
+    buffer = model.replay_buffer
+    assert buffer.buffer_size == 100 and buffer.pos == 25 and not buffer.full
+    assert np.array_equal(buffer.observations["joint_pos"][:25], held)
+    assert not buffer.observations["joint_pos"][25:].any()
+    grow_replay_buffer(model, 50)  # never shrinks
+    assert model.replay_buffer is buffer
+    env.close()
+
+
+def test_short_run_with_the_papers_buffer_allocates_only_what_it_uses(tmp_path):
+    # obs=enn with a 1e6 buffer needs 24.9 GiB; a 30-step run stores 30 transitions.
+    run = tmp_path / "run"
+    tiny = [a for a in TINY if not a.startswith(("obs=", "algo.buffer_size="))]
+    result = _train([*tiny, "obs=enn", "algo.buffer_size=1000000", "trainer.total_timesteps=30",
+                     f"hydra.run.dir={run}"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (run / "eval" / "metrics.md").is_file()
 
 
 def test_device_option_reaches_the_model():

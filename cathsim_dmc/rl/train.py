@@ -81,6 +81,30 @@ def check_replay_memory(observation_space, action_dim: int, buffer_size: int, fr
     return need
 
 
+def grow_replay_buffer(model, capacity: int) -> None:
+    """Give `model` a replay buffer of `capacity` transitions, keeping what it holds.
+
+    A resumed run may have a larger step budget than the one its buffer was sized for.
+    """
+    old = model.replay_buffer
+    if old is None or old.buffer_size * old.n_envs >= capacity:
+        return
+    new = type(old)(capacity, old.observation_space, old.action_space, device=old.device, n_envs=old.n_envs,
+                    handle_timeout_termination=old.handle_timeout_termination)
+    rows = old.buffer_size if old.full else old.pos
+    for name in ("observations", "next_observations"):
+        source, target = getattr(old, name), getattr(new, name)
+        if isinstance(source, dict):
+            for key in source:
+                target[key][:rows] = source[key][:rows]
+        else:
+            target[:rows] = source[:rows]
+    for name in ("actions", "rewards", "dones", "timeouts"):
+        getattr(new, name)[:rows] = getattr(old, name)[:rows]
+    new.pos, new.full = rows, False
+    model.replay_buffer, model.buffer_size = new, capacity
+
+
 # -- model -------------------------------------------------------------------------
 def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None):
     from stable_baselines3 import SAC
@@ -273,7 +297,13 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     run_dir = Path(run_dir)
     if trainer.get("torch_threads"):
         torch.set_num_threads(int(trainer["torch_threads"]))
-    check_replay_memory(env.observation_space, env.action_space.shape[0], int(algo["buffer_size"]))
+    total = int(trainer["total_timesteps"])
+    # A run never stores more transitions than it takes, so the buffer is allocated (and
+    # checked against free memory) for min(buffer_size, total_timesteps): a short run
+    # with the paper's 1e6 buffer does not need 24.9 GiB.
+    capacity = max(1, min(int(algo["buffer_size"]), total))
+    algo = dict(algo, buffer_size=capacity)
+    check_replay_memory(env.observation_space, env.action_space.shape[0], capacity)
     tb_dir = str(run_dir / "tensorboard")
     ckpt_dir = run_dir / CHECKPOINT_DIR
     if resume:
@@ -283,10 +313,10 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         model = SAC.load(last, env=env, device=trainer["device"], tensorboard_log=tb_dir)
         if (ckpt_dir / REPLAY_BUFFER).is_file():
             model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
+        grow_replay_buffer(model, capacity)
     else:
         model = build_sac(env, algo, seed, trainer["device"], tb_dir)
         write_policy_file(run_dir, obs, task, aorta, image_options)
-    total = int(trainer["total_timesteps"])
     EpisodeStats, Checkpoints, Progress, PeriodicEval = _callbacks()
     checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
     callbacks = [EpisodeStats(), checkpoints]
