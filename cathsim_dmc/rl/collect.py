@@ -145,7 +145,8 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     act, feature_fn, label, policy_images = collection_policy(policy, seed)
     images = {**(image_options or {}), **policy_images}
     settings = {"task": task, "aorta": aorta, "policy": label, "seed": seed, "episodes_per_shard": episodes_per_shard,
-                "obs": COLLECT_OBS, "image_options": images, "task_options": dict(task_options or {})}
+                "obs": COLLECT_OBS, "image_options": images, "task_options": dict(task_options or {}),
+                "feature_z": feature_fn is not None}
     manifest_path = out_dir / MANIFEST
     if manifest_path.is_file():
         old = json.loads(manifest_path.read_text())

@@ -65,6 +65,15 @@ def read_keys(path, keys) -> dict:
         return {key: data[key] for key in keys}
 
 
+def has_keys(paths, keys) -> bool:
+    """Whether every trajectory file of `paths` holds all of `keys` (nothing is read)."""
+    for path in expand_paths(paths):
+        with np.load(path, allow_pickle=False) as data:
+            if not set(keys) <= set(data.files):
+                return False
+    return True
+
+
 def _is_observation(key: str) -> bool:
     return key.startswith("obs_") or key == "feature_z"
 
