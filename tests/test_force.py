@@ -85,6 +85,7 @@ def test_cli_reports_mse_per_size(tmp_path):
     ([], "data="),
     (["data=/no/such/dataset"], "/no/such/dataset"),
     (["data={empty}"], "holds no dataset"),
+    (["data={data}"], "not a readable"),
     (["data={data}", "image_key=depth"], "pixels"),
     (["data={data}", "force.sizes=[0]"], "force.sizes"),
 ])

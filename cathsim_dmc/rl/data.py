@@ -16,6 +16,7 @@ samples never come from an episode the model was trained on.
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -50,27 +51,33 @@ def read_keys(path, keys) -> dict:
     """`keys` of one trajectory file (and nothing else), with the schema checked."""
     path = Path(path)
     try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as error:
+        with np.load(path, allow_pickle=False) as data:
+            version = int(data["schema_version"]) if "schema_version" in data.files else -1
+            if version != SCHEMA_VERSION:
+                raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
+            missing = [k for k in keys if k not in data.files]
+            if missing:
+                hint = (" (record observations with save_observations=true, or collect with cathsim-collect)"
+                        if any(k.startswith(("obs_", "start_")) for k in missing) else "")
+                raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(data.files)}")
+            return {key: data[key] for key in keys}
+    except (OSError, EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
+    except ValueError as error:
+        if str(path) in str(error):
+            raise
         raise ValueError(f"{path} is not a readable trajectory file ({error})") from error
-    with data:
-        version = int(data["schema_version"]) if "schema_version" in data.files else -1
-        if version != SCHEMA_VERSION:
-            raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
-        missing = [k for k in keys if k not in data.files]
-        if missing:
-            hint = (" (record observations with save_observations=true, or collect with cathsim-collect)"
-                    if any(k.startswith(("obs_", "start_")) for k in missing) else "")
-            raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(data.files)}")
-        return {key: data[key] for key in keys}
 
 
 def has_keys(paths, keys) -> bool:
     """Whether every trajectory file of `paths` holds all of `keys` (nothing is read)."""
     for path in expand_paths(paths):
-        with np.load(path, allow_pickle=False) as data:
-            if not set(keys) <= set(data.files):
-                return False
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if not set(keys) <= set(data.files):
+                    return False
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as error:
+            raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
     return True
 
 
