@@ -29,6 +29,8 @@ Optional keys (absent from files that did not record them; readers check):
   feature_z          (N, F)    float32, the feature vector Z of the ENN policy that acted,
                                computed from that row's observation (cathsim-collect)
   start_feature_z    (E, F)    float32, Z of the reset observation
+  expert_action      (N, 2)    float32, the policy's own action when `action` (executed)
+                               had exploration noise added (cathsim-collect action_noise_std)
   first_episode      ()        int, global index of this file's episode 0 (a shard of a
                                cathsim-collect dataset; episode e was reset with seed + e)
 

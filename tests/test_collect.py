@@ -103,3 +103,20 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
     assert result.returncode == 2, result.stderr[-2000:]
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert len(lines) == 1 and expected in lines[0] and "Traceback" not in result.stderr
+
+
+def test_noise_injection_keeps_the_clean_expert_label(tmp_path):
+    manifest = collect(tmp_path / "data", "bca", "type1", "expert", episodes=1, episodes_per_shard=1, seed=0,
+                       task_options=TINY, show_progress=False, action_noise_std=0.3)
+    assert manifest["action_noise_std"] == 0.3
+    data = read_keys(tmp_path / "data" / "shard_00000.npz", ("action", "expert_action"))
+    executed, clean = data["action"], data["expert_action"]
+    assert clean.shape == executed.shape == (6, 2) and np.all(np.abs(executed) <= 1.0)
+    assert not np.allclose(executed, clean)
+    # The expert's first action from the reset state does not depend on the noise.
+    plain = collect(tmp_path / "plain", "bca", "type1", "expert", episodes=1, episodes_per_shard=1, seed=0,
+                    task_options=TINY, show_progress=False)
+    first = read_keys(tmp_path / "plain" / "shard_00000.npz", ("action",))["action"][0]
+    assert plain["action_noise_std"] == 0.0 and np.allclose(clean[0], first)
+    with pytest.raises(ValueError, match="expert_action"):
+        read_keys(tmp_path / "plain" / "shard_00000.npz", ("expert_action",))

@@ -43,7 +43,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy
     from cathsim_dmc.rl.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
-    from cathsim_dmc.rl.data import load_arrays
+    from cathsim_dmc.rl.data import has_keys, load_arrays
 
     image_key = str(cfg.bc.image_key)
     if image_key not in PRESET_FOR_IMAGE:
@@ -62,10 +62,12 @@ def run(cfg) -> dict:
     if cfg.torch_threads:
         torch.set_num_threads(int(cfg.torch_threads))
 
-    keys = [f"obs_{image_key}", "action"] + (["feature_z"] if bc_cfg.distill_coef > 0 else [])
+    # Noise-injected demonstrations label each image with the expert's clean action.
+    label = "expert_action" if has_keys(paths, ("expert_action",)) else "action"
+    keys = [f"obs_{image_key}", label] + (["feature_z"] if bc_cfg.distill_coef > 0 else [])
     arrays = load_arrays(paths, keys, before_action=True)
-    images, actions = arrays[f"obs_{image_key}"], arrays["action"]
-    log.info("%d samples from %d episodes in %s", len(actions), len(set(arrays["episode"])), paths)
+    images, actions = arrays[f"obs_{image_key}"], arrays[label]
+    log.info("%d samples from %d episodes in %s; labels: %s", len(actions), len(set(arrays["episode"])), paths, label)
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -36,7 +36,7 @@ def run(cfg) -> dict:
     out = Path(str(cfg.out)) if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
     manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy), int(cfg.episodes),
                        int(cfg.episodes_per_shard), int(cfg.seed), task_options(cfg), image_options(cfg.obs),
-                       show_progress=cfg.progress_bar)
+                       show_progress=cfg.progress_bar, action_noise_std=float(cfg.action_noise_std))
     print(f"{manifest['episodes']} episodes, {manifest['samples']} samples, "
           f"{manifest['successes']} reached the target; dataset in {out}")
     return manifest

@@ -34,7 +34,8 @@ SHARD_FORMAT = "shard_{:05d}.npz"
 COLLECT_OBS = "enn"  # every modality: the image, the mask and the joint state
 # Settings that must match when a run continues an existing dataset (the episode count
 # may grow: the new episodes go into new shards).
-_SAME_ON_RESUME = ("task", "aorta", "policy", "seed", "episodes_per_shard", "obs", "image_options", "task_options")
+_SAME_ON_RESUME = ("task", "aorta", "policy", "seed", "episodes_per_shard", "obs", "image_options", "task_options",
+                   "action_noise_std")
 
 
 @dataclass
@@ -44,6 +45,8 @@ class FeatureRecorder(TrajectoryRecorder):
     feature_fn: Callable | None = None
     features: list = field(default_factory=list)
     start_features: list = field(default_factory=list)
+    clean_action_fn: Callable | None = None  # the policy's own action, before exploration noise
+    clean_actions: list = field(default_factory=list)
 
     def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None) -> None:
         super().start_episode(tip_position_m, optimal_path_length_m, observation)
@@ -54,13 +57,36 @@ class FeatureRecorder(TrajectoryRecorder):
         super().record(action, reward, info, terminated, truncated, observation)
         if self.feature_fn is not None and observation is not None:
             self.features.append(self.feature_fn(observation))
+        if self.clean_action_fn is not None:
+            self.clean_actions.append(self.clean_action_fn())
 
     def arrays(self) -> dict:
         out = super().arrays()
         if self.features:
             out["feature_z"] = np.stack(self.features).astype(np.float32)
             out["start_feature_z"] = np.stack(self.start_features).astype(np.float32)
+        if self.clean_action_fn is not None:
+            out["expert_action"] = np.asarray(self.clean_actions, dtype=np.float32).reshape(-1, 2)
         return out
+
+
+class NoisyPolicy:
+    """Executes the policy's action plus Gaussian noise, remembers the clean one.
+
+    Demonstrations with injected noise (DART, Laskey et al. 2017): the closed-loop expert
+    is pushed off its own path and shows how to recover, which a cloned student needs
+    once its own small errors take it there. The clean action is the label.
+    """
+
+    def __init__(self, policy, std: float, seed):
+        self.policy, self.std = policy, float(std)
+        self._rng = np.random.default_rng(seed)
+        self.last_clean = None
+
+    def __call__(self, observation, env):
+        self.last_clean = np.asarray(self.policy(observation, env), dtype=np.float32)
+        noise = self._rng.normal(0.0, self.std, size=self.last_clean.shape)
+        return np.clip(self.last_clean + noise, -1.0, 1.0).astype(np.float32)
 
 
 def enn_feature_fn(model, observation_keys):
@@ -130,8 +156,13 @@ def _write_manifest(out_dir: Path, settings: dict, shards: list) -> dict:
 
 
 def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes_per_shard: int, seed: int,
-            task_options: dict | None = None, image_options: dict | None = None, show_progress: bool = True) -> dict:
-    """Collect (or continue collecting) `episodes` episodes into shards under `out_dir`."""
+            task_options: dict | None = None, image_options: dict | None = None, show_progress: bool = True,
+            action_noise_std: float = 0.0) -> dict:
+    """Collect (or continue collecting) `episodes` episodes into shards under `out_dir`.
+
+    With `action_noise_std` > 0 the executed action is the policy's plus seeded Gaussian
+    noise (clipped to [-1, 1]), and the policy's clean action is stored as `expert_action`.
+    """
     from tqdm import tqdm
 
     from cathsim_dmc.cli.eval import run_episodes
@@ -141,12 +172,14 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
         raise ValueError(f"episodes={episodes} must be at least 1")
     if episodes_per_shard < 1:
         raise ValueError(f"episodes_per_shard={episodes_per_shard} must be at least 1")
+    if not action_noise_std >= 0:
+        raise ValueError(f"action_noise_std={action_noise_std} must be >= 0")
     out_dir = Path(out_dir)
     act, feature_fn, label, policy_images = collection_policy(policy, seed)
     images = {**(image_options or {}), **policy_images}
     settings = {"task": task, "aorta": aorta, "policy": label, "seed": seed, "episodes_per_shard": episodes_per_shard,
                 "obs": COLLECT_OBS, "image_options": images, "task_options": dict(task_options or {}),
-                "feature_z": feature_fn is not None}
+                "feature_z": feature_fn is not None, "action_noise_std": float(action_noise_std)}
     manifest_path = out_dir / MANIFEST
     if manifest_path.is_file():
         old = json.loads(manifest_path.read_text())
@@ -175,9 +208,13 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
             if index in done:
                 continue
             first = index * episodes_per_shard
+            shard_policy, clean = act, None
+            if action_noise_std > 0:  # seeded per shard, so a resumed run repeats it
+                shard_policy = NoisyPolicy(act, action_noise_std, (seed, first))
+                clean = lambda p=shard_policy: p.last_clean  # noqa: E731
             recorder = FeatureRecorder(task, aorta, env.task.target_position_m, policy=label,
-                                       record_observations=True, feature_fn=feature_fn)
-            run_episodes(env, act, count, seed + first, recorder, show_progress=False)
+                                       record_observations=True, feature_fn=feature_fn, clean_action_fn=clean)
+            run_episodes(env, shard_policy, count, seed + first, recorder, show_progress=False)
             path = out_dir / SHARD_FORMAT.format(index)
             recorder.save(path, compress=False, first_episode=np.int32(first))
             done[index] = shard_info(path)
