@@ -53,6 +53,15 @@ def test_dataset_round_trip_and_resume(tmp_path):
     with pytest.raises(ValueError, match="policy"):
         collect(out, "bca", "type1", "forward", episodes=4, episodes_per_shard=2, seed=5, task_options=TINY,
                 show_progress=False)
+    # A dataset holds what its manifest lists: asking for fewer episodes leaves the later
+    # shard file on disk but out of the dataset. A manifest from before action noise
+    # existed continues as noise-free.
+    manifest = json.loads((out / MANIFEST).read_text())
+    del manifest["action_noise_std"]
+    (out / MANIFEST).write_text(json.dumps(manifest))
+    collect(out, "bca", "type1", "expert", episodes=2, episodes_per_shard=2, seed=5, task_options=TINY,
+            show_progress=False)
+    assert (out / "shard_00001.npz").is_file() and len(load_arrays([out], ("action",))["action"]) == 12
 
 
 def test_enn_agent_records_its_features(tmp_path):

@@ -36,6 +36,7 @@ COLLECT_OBS = "enn"  # every modality: the image, the mask and the joint state
 # may grow: the new episodes go into new shards).
 _SAME_ON_RESUME = ("task", "aorta", "policy", "seed", "episodes_per_shard", "obs", "image_options", "task_options",
                    "action_noise_std")
+_RESUME_DEFAULTS = {"action_noise_std": 0.0}  # settings older datasets did not record
 
 
 @dataclass
@@ -184,7 +185,7 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     if manifest_path.is_file():
         old = json.loads(manifest_path.read_text())
         for key in _SAME_ON_RESUME:
-            if old.get(key) != settings[key]:
+            if old.get(key, _RESUME_DEFAULTS.get(key)) != settings[key]:
                 raise ValueError(f"{out_dir} holds a dataset collected with {key}={old.get(key)!r}, not "
                                  f"{settings[key]!r}; continue it with the same settings or choose another out folder")
     out_dir.mkdir(parents=True, exist_ok=True)

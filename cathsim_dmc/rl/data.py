@@ -16,6 +16,7 @@ samples never come from an episode the model was trained on.
 
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 
@@ -35,7 +36,7 @@ def expand_paths(paths) -> list:
         if path.is_file():
             files.append(path)
         elif path.is_dir():
-            found = sorted(path.glob(SHARD_GLOB)) or sorted(path.glob("trajectories.npz"))
+            found = _manifest_shards(path) or sorted(path.glob(SHARD_GLOB)) or sorted(path.glob("trajectories.npz"))
             if not found:
                 raise FileNotFoundError(f"{path} holds no dataset ({SHARD_GLOB} or trajectories.npz); "
                                         f"collect one with cathsim-collect")
@@ -45,6 +46,15 @@ def expand_paths(paths) -> list:
     if not files:
         raise FileNotFoundError("no dataset given")
     return files
+
+
+def _manifest_shards(folder: Path) -> list:
+    """The shards a cathsim-collect manifest lists (a run asked for fewer episodes than an
+    earlier one may leave more shard files than the dataset holds)."""
+    manifest = folder / "manifest.json"
+    if not manifest.is_file():
+        return []
+    return [folder / shard["file"] for shard in json.loads(manifest.read_text()).get("shards", [])]
 
 
 def read_keys(path, keys) -> dict:
