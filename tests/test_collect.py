@@ -95,6 +95,16 @@ def test_enn_agent_records_its_features(tmp_path):
         z = model.actor.extract_features(tensor, model.actor.features_extractor)[0].numpy()
     np.testing.assert_allclose(data["feature_z"][2], z, rtol=1e-5, atol=1e-6)
 
+    # Distillation reads Z paired with the image the action was chosen from.
+    from cathsim_dmc.rl.bc import BCConfig, train_bc
+
+    arrays = load_arrays([tmp_path / "data"], ("obs_pixels", "action", "feature_z"), before_action=True)
+    np.testing.assert_array_equal(arrays["feature_z"][0], data["start_feature_z"][0])
+    np.testing.assert_array_equal(arrays["feature_z"][3], data["feature_z"][2])
+    result = train_bc(arrays["obs_pixels"], arrays["action"], arrays["episode"],
+                      BCConfig(epochs=1, distill_coef=1.0, val_fraction=0.0), z=arrays["feature_z"])
+    assert result.net.z_dim == 640 and "train_z_mse" in result.history[0]
+
 
 def test_collect_cli_writes_a_dataset(tmp_path):
     result = _collect(["episodes=1", "task.max_steps=3", "progress_bar=false", f"hydra.run.dir={tmp_path}/run"], tmp_path)
