@@ -36,7 +36,7 @@ def test_nested_subsets_grow_by_whole_episodes():
 def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
     torch.set_num_threads(1)
     images, force, episodes = _synthetic()
-    cfg = ForceConfig(sizes=(40, 190), epochs=1, min_updates=400, batch_size=16, test_fraction=0.2,
+    cfg = ForceConfig(sizes=(40, 190), epochs=1, min_updates=250, batch_size=16, test_fraction=0.2,
                       val_fraction=0.1, seed=0)
     report = train_force_sizes(images, force, episodes, cfg, out_dir=tmp_path)
     small, large = report["sizes"]
