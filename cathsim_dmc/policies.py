@@ -7,6 +7,7 @@ privileged state through it), learned ones only look at the observation.
 from __future__ import annotations
 
 import json
+import pickle
 import zipfile
 from pathlib import Path
 
@@ -60,13 +61,13 @@ def find_checkpoint(path) -> Path:
     if path.is_file():
         return path
     if path.is_dir():
-        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip"):
+        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
             if candidate.is_file():
                 return candidate
         zips = sorted(path.glob("**/*.zip"), key=lambda p: p.stat().st_mtime)
         if zips:
             return zips[-1]
-        raise FileNotFoundError(f"no checkpoint (.zip) in {path}")
+        raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")
     raise FileNotFoundError(f"no checkpoint at {path}")
 
 
@@ -96,7 +97,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             model = load_bc_policy(model_path)
         else:
             raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
-    except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile) as error:
+    except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
         raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
     return CheckpointPolicy(model, info["obs"], info.get("image_options"))
 

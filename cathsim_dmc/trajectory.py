@@ -21,6 +21,19 @@ Schema (version 2): one row per control step, all episodes concatenated.
   target_position_m  (3,)      float32
   policy             ()        str, what produced the actions
 
+Optional keys (absent from files that did not record them; readers check):
+
+  start_obs_<key>    (E, ...)  observation at reset, per episode, stored with obs_<key>:
+                               the action of a row was chosen from the previous row's
+                               observation, or from this one for step 1
+  feature_z          (N, F)    float32, the feature vector Z of the ENN policy that acted,
+                               computed from that row's observation (cathsim-collect)
+  start_feature_z    (E, F)    float32, Z of the reset observation
+  expert_action      (N, 2)    float32, the policy's own action when `action` (executed)
+                               had exploration noise added (cathsim-collect action_noise_std)
+  first_episode      ()        int, global index of this file's episode 0 (a shard of a
+                               cathsim-collect dataset; episode e was reset with seed + e)
+
 Version 2 added `optimal_path_length_m` (for SPL), `policy` and `obs_<key>`.
 """
 
@@ -52,16 +65,21 @@ class TrajectoryRecorder:
     observations: dict = field(default_factory=dict)
     starts: list = field(default_factory=list)
     optimal_paths: list = field(default_factory=list)
+    start_observations: dict = field(default_factory=dict)
 
-    def start_episode(self, tip_position_m, optimal_path_length_m: float) -> None:
+    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None) -> None:
         self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
         self.optimal_paths.append(float(optimal_path_length_m))
+        if self.record_observations and observation is not None:
+            # Behavioural cloning pairs an action with the observation it was chosen
+            # from; for an episode's first action that is the reset observation.
+            for key, value in observation.items():
+                self.start_observations.setdefault(key, []).append(_stored(value))
 
     def record(self, action, reward, info, terminated, truncated, observation=None) -> None:
         if self.record_observations and observation is not None:
             for key, value in observation.items():
-                value = np.asarray(value)
-                self.observations.setdefault(key, []).append(value if value.dtype == np.uint8 else value.astype(np.float32))
+                self.observations.setdefault(key, []).append(_stored(value))
         values = {
             "episode": len(self.starts) - 1, "step": info["step"], "action": action, "reward": reward,
             "tip_position_m": info["tip_position_m"], "contact_force_n": info["contact_force_n"],
@@ -76,6 +94,7 @@ class TrajectoryRecorder:
         out["action"] = out["action"].reshape(-1, 2)
         out["tip_position_m"] = out["tip_position_m"].reshape(-1, 3)
         out.update({f"obs_{key}": np.stack(values) for key, values in self.observations.items()})
+        out.update({f"start_obs_{key}": np.stack(values) for key, values in self.start_observations.items()})
         out.update(
             schema_version=np.int32(SCHEMA_VERSION), task=np.str_(self.task), aorta=np.str_(self.aorta),
             policy=np.str_(self.policy),
@@ -85,12 +104,22 @@ class TrajectoryRecorder:
         )
         return out
 
-    def save(self, path) -> Path:
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, **self.arrays())
-        tmp.replace(path)  # atomic: a reader never sees half a file
-        return path
+    def save(self, path, compress: bool = True, **extra) -> Path:
+        """Write the npz atomically; `extra` arrays are added as they are."""
+        return save_npz(path, {**self.arrays(), **extra}, compress)
+
+
+def save_npz(path, arrays: dict, compress: bool = True) -> Path:
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    (np.savez_compressed if compress else np.savez)(tmp, **arrays)
+    tmp.replace(path)  # atomic: a reader never sees half a file
+    return path
+
+
+def _stored(value) -> np.ndarray:
+    value = np.asarray(value)
+    return value if value.dtype == np.uint8 else value.astype(np.float32)
 
 
 def load_trajectories(path) -> dict:

@@ -36,7 +36,8 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder, video_frames=N
     progress = tqdm(total=episodes * max_steps, unit="step", desc="evaluating", disable=not show_progress)
     for episode in range(episodes):
         observation, info = env.reset(seed=seed + episode)
-        recorder.start_episode(info["tip_position_m"], remaining_centerline_length_m(centerline, info["tip_position_m"]))
+        recorder.start_episode(info["tip_position_m"], remaining_centerline_length_m(centerline, info["tip_position_m"]),
+                               observation)
         total, done = 0.0, False
         while not done:
             action = policy(observation, env)

@@ -1,8 +1,14 @@
 """Datasets from trajectory files, for behavioural cloning and force prediction.
 
-    from cathsim_dmc.rl.data import TrajectoryDataset
+    from cathsim_dmc.rl.data import TrajectoryDataset, load_arrays
     data = TrajectoryDataset(["run/trajectories.npz"], inputs=("obs_pixels",), targets=("action",))
     image, action = data[0]          # float32 tensors: image in [0, 1], (1, 80, 80)
+    arrays = load_arrays(["outputs/collect/bca-type1/<run>"], ("obs_pixels", "action"), before_action=True)
+
+A path is a trajectory file or a folder: a `cathsim-collect` dataset (its
+`shard_*.npz`, in order) or a run folder with a `trajectories.npz`. Only the keys asked
+for are read from each file (an uncompressed shard reads one key without touching the
+others), and episode ids are renumbered so they are unique across files.
 
 Episodes stay whole: `split_by_episode` holds out complete episodes, so that test
 samples never come from an episode the model was trained on.
@@ -10,29 +16,122 @@ samples never come from an episode the model was trained on.
 
 from __future__ import annotations
 
+import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.trajectory import load_trajectories
+from cathsim_dmc.trajectory import SCHEMA_VERSION
+
+SHARD_GLOB = "shard_*.npz"
 
 
-def load_arrays(paths, keys) -> dict:
-    """Concatenate `keys` (and a global episode id) over several trajectory files."""
+def expand_paths(paths) -> list:
+    """Trajectory files named by `paths` (files, dataset folders, run folders), in order."""
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    files = []
+    for path in map(Path, paths):
+        if path.is_file():
+            files.append(path)
+        elif path.is_dir():
+            found = _manifest_shards(path) or sorted(path.glob(SHARD_GLOB)) or sorted(path.glob("trajectories.npz"))
+            if not found:
+                raise FileNotFoundError(f"{path} holds no dataset ({SHARD_GLOB} or trajectories.npz); "
+                                        f"collect one with cathsim-collect")
+            files.extend(found)
+        else:
+            raise FileNotFoundError(f"no dataset at {path}")
+    if not files:
+        raise FileNotFoundError("no dataset given")
+    return files
+
+
+def _manifest_shards(folder: Path) -> list:
+    """The shards a cathsim-collect manifest lists (a run asked for fewer episodes than an
+    earlier one may leave more shard files than the dataset holds)."""
+    manifest = folder / "manifest.json"
+    if not manifest.is_file():
+        return []
+    return [folder / shard["file"] for shard in json.loads(manifest.read_text()).get("shards", [])]
+
+
+def read_keys(path, keys) -> dict:
+    """`keys` of one trajectory file (and nothing else), with the schema checked."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            version = int(data["schema_version"]) if "schema_version" in data.files else -1
+            if version != SCHEMA_VERSION:
+                raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
+            missing = [k for k in keys if k not in data.files]
+            if missing:
+                hint = (" (record observations with save_observations=true, or collect with cathsim-collect)"
+                        if any(k.startswith(("obs_", "start_")) for k in missing) else "")
+                raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(data.files)}")
+            return {key: data[key] for key in keys}
+    except (OSError, EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
+    except ValueError as error:
+        if str(path) in str(error):
+            raise
+        raise ValueError(f"{path} is not a readable trajectory file ({error})") from error
+
+
+def has_keys(paths, keys) -> bool:
+    """Whether every trajectory file of `paths` holds all of `keys` (nothing is read)."""
+    for path in expand_paths(paths):
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if not set(keys) <= set(data.files):
+                    return False
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as error:
+            raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
+    return True
+
+
+def _is_observation(key: str) -> bool:
+    return key.startswith("obs_") or key == "feature_z"
+
+
+def _before_action(values, start, episode, step):
+    """Row i's value as it was when row i's action was chosen: the previous row's
+    observation, or the episode's reset observation for its first step."""
+    out = np.empty_like(values)
+    out[1:] = values[:-1]
+    first = step == 1
+    out[first] = start[episode[first]]
+    return out
+
+
+def load_arrays(paths, keys, before_action: bool = False) -> dict:
+    """Concatenate `keys` (and a global `episode` id) over trajectory files and folders.
+
+    Rows hold the observation *after* their action. With `before_action`, observation
+    keys (`obs_<key>`, `feature_z`) are shifted to the observation the action was chosen
+    from, which is what behavioural cloning pairs with the action; this needs the
+    reset observations (`start_obs_<key>`) that cathsim-collect records.
+    """
+    keys = tuple(keys)
     parts = {key: [] for key in keys}
     episodes, offset = [], 0
-    for path in paths:
-        arrays = load_trajectories(path)
-        missing = [k for k in keys if k not in arrays]
-        if missing:
-            hint = " (record observations with save_observations=true)" if any(k.startswith("obs_") for k in missing) else ""
-            raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(arrays)}")
+    for path in expand_paths(paths):
+        shifted = [k for k in keys if before_action and _is_observation(k)]
+        extra = ["episode", "step"] + [f"start_{k}" for k in shifted]
+        arrays = read_keys(path, tuple(dict.fromkeys(keys + tuple(extra))))
         for key in keys:
-            parts[key].append(arrays[key])
+            value = arrays[key]
+            if key in shifted:
+                value = _before_action(value, arrays[f"start_{key}"], arrays["episode"], arrays["step"])
+            parts[key].append(value)
         episodes.append(arrays["episode"] + offset)
         offset += int(arrays["episode"].max()) + 1 if len(arrays["episode"]) else 0
     out = {key: np.concatenate(values) for key, values in parts.items()}
     out["episode"] = np.concatenate(episodes)
+    if len(out["episode"]) == 0:
+        raise ValueError(f"the dataset {[str(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]} "
+                         f"has no samples")
     return out
 
 
@@ -51,11 +150,9 @@ class TrajectoryDataset:
     uint8 inputs (images) are scaled to float32 in [0, 1]; everything else is float32.
     """
 
-    def __init__(self, paths, inputs=("obs_pixels",), targets=("action",), rows=None):
-        if isinstance(paths, (str, Path)):
-            paths = [paths]
+    def __init__(self, paths, inputs=("obs_pixels",), targets=("action",), rows=None, before_action: bool = False):
         self.inputs, self.targets = tuple(inputs), tuple(targets)
-        self.arrays = load_arrays(paths, self.inputs + self.targets)
+        self.arrays = load_arrays(paths, self.inputs + self.targets, before_action=before_action)
         self.episode = self.arrays["episode"]
         self.rows = np.arange(len(self.episode)) if rows is None else np.asarray(rows)
 

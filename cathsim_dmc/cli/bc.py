@@ -1,0 +1,121 @@
+"""cathsim-bc: behavioural cloning of an image-only student from demonstrations.
+
+    cathsim-bc task=bca aorta=type1 data=outputs/collect/bca-type1/<run>
+    cathsim-bc data=<dataset of an ENN agent> bc.distill_coef=1.0   # feature distillation
+    cathsim-eval policy=outputs/bc/bca-type1/<run>                   # evaluate it again
+
+The run folder gets config.yaml, bc_policy.pt + policy.json (a checkpoint cathsim-eval
+loads like any other), history.json (train and validation losses per epoch) and eval/
+(the cathsim-eval report of the student over `eval_episodes` episodes).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+log = logging.getLogger("cathsim-bc")
+
+
+def dataset_paths(data) -> list:
+    from omegaconf import ListConfig
+
+    if data is None or data == "":
+        raise ValueError("data=<dataset folder> is required: a folder written by cathsim-collect")
+    return [str(d) for d in data] if isinstance(data, (list, ListConfig)) else [str(data)]
+
+
+def dataset_manifests(paths) -> list:
+    from cathsim_dmc.rl.collect import MANIFEST
+
+    return [json.loads((Path(p) / MANIFEST).read_text()) for p in paths if (Path(p) / MANIFEST).is_file()]
+
+
+def run(cfg) -> dict:
+    import torch
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+    from tqdm import tqdm
+
+    from cathsim_dmc.cli.collect import task_options
+    from cathsim_dmc.cli.eval import evaluate_policy, image_options
+    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.policies import CheckpointPolicy
+    from cathsim_dmc.rl.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
+    from cathsim_dmc.rl.data import has_keys, load_arrays
+
+    image_key = str(cfg.bc.image_key)
+    if image_key not in PRESET_FOR_IMAGE:
+        raise ValueError(f"bc.image_key={image_key!r}; choose one of {sorted(PRESET_FOR_IMAGE)}")
+    options = {k: v for k, v in OmegaConf.to_container(cfg.bc).items() if k != "image_key"}
+    bc_cfg = BCConfig(**options, seed=int(cfg.seed))
+    if bc_cfg.epochs < 1 or bc_cfg.batch_size < 1:
+        raise ValueError(f"bc.epochs={bc_cfg.epochs} and bc.batch_size={bc_cfg.batch_size} must be at least 1")
+    paths = dataset_paths(cfg.data)
+    manifests = dataset_manifests(paths)
+    images_opts = {**image_options(cfg.obs), **(manifests[0]["image_options"] if manifests else {})}
+    for m in manifests:
+        if (m["task"], m["aorta"]) != (cfg.task.target, cfg.aorta.name):
+            log.warning("data was collected on %s/%s; the student is evaluated on %s/%s",
+                        m["task"], m["aorta"], cfg.task.target, cfg.aorta.name)
+    if cfg.torch_threads:
+        torch.set_num_threads(int(cfg.torch_threads))
+
+    # Noise-injected demonstrations label each image with the expert's clean action.
+    label = "expert_action" if has_keys(paths, ("expert_action",)) else "action"
+    keys = [f"obs_{image_key}", label] + (["feature_z"] if bc_cfg.distill_coef > 0 else [])
+    arrays = load_arrays(paths, keys, before_action=True)
+    images, actions = arrays[f"obs_{image_key}"], arrays[label]
+    log.info("%d samples from %d episodes in %s; labels: %s", len(actions), len(set(arrays["episode"])), paths, label)
+
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    bar = tqdm(total=bc_cfg.epochs, unit="epoch", desc="training", disable=not cfg.progress_bar)
+
+    def progress(epoch, train, val):
+        bar.update(1)
+        bar.set_postfix(loss=f"{train['loss']:.3f}", val_mse=f"{val.get('action_mse', float('nan')):.4f}")
+        log.info("epoch %d: train %s val %s", epoch, _fmt(train), _fmt(val))
+
+    result = train_bc(images, actions, arrays["episode"], bc_cfg, arrays.get("feature_z"), progress)
+    bar.close()
+    per_10k = epoch_seconds_per_10k(result.history, len(result.train_rows))
+    log.info("trained %d epochs on %d samples in %.0f s (%.1f s per epoch per 10K samples)",
+             bc_cfg.epochs, len(result.train_rows), result.seconds, per_10k)
+    (run_dir / "history.json").write_text(json.dumps(
+        {"train_samples": int(len(result.train_rows)), "val_samples": int(len(result.val_rows)),
+         "seconds": result.seconds, "seconds_per_epoch_per_10k": per_10k, "epochs": result.history}, indent=2))
+    save_bc(result.net, run_dir, image_key, images_opts,
+            {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths})
+
+    if cfg.eval_episodes <= 0:
+        return {"history": result.history}
+    policy = CheckpointPolicy(BCPolicyModel(result.net, image_key), PRESET_FOR_IMAGE[image_key], images_opts)
+    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=policy.obs_preset, **images_opts,
+                     **task_options(cfg))
+    try:
+        report = evaluate_policy(env, policy, f"bc-{image_key}", cfg.eval_episodes, int(cfg.eval_seed),
+                                 run_dir / "eval", video=cfg.video, show_progress=cfg.progress_bar)
+    finally:
+        env.close()
+    print((run_dir / "eval" / "metrics.md").read_text(), end="")
+    print(f"success {report['summary']['success_pct']['mean']:.0f}% over {cfg.eval_episodes} episodes; "
+          f"run folder: {run_dir}")
+    return report
+
+
+def _fmt(terms: dict) -> str:
+    return " ".join(f"{k}={v:.4g}" for k, v in terms.items())
+
+
+def main():
+    from cathsim_dmc.cli._common import run_hydra
+    from cathsim_dmc.tasks import TARGETS, aorta_choices
+
+    run_hydra(run, "bc", {"task": lambda: TARGETS, "aorta": aorta_choices})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+"""cathsim-force: the network learns a synthetic image -> force relation; subsets, baselines, errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from cathsim_dmc.rl.force import ForceConfig, ForceNetwork, markdown, nested_subsets, train_force_sizes
+
+
+def _synthetic(episodes=24, steps=10, seed=0):
+    """A bright square whose area sets the force: f = 2 N x (side / 40 px)^2."""
+    rng = np.random.default_rng(seed)
+    n = episodes * steps
+    images = np.zeros((n, 1, 80, 80), np.uint8)
+    sides = rng.integers(4, 41, size=n)
+    corners = rng.integers(0, 80 - sides + 1, size=(2, n))
+    for i, (side, y, x) in enumerate(zip(sides, *corners)):
+        images[i, 0, y:y + side, x:x + side] = 255
+    force = (2.0 * (sides / 40.0) ** 2).astype(np.float32)
+    return images, force, np.repeat(np.arange(episodes), steps)
+
+
+def test_nested_subsets_grow_by_whole_episodes():
+    episodes = np.repeat(np.arange(10), 5)
+    train = np.arange(40)  # episodes 0..7
+    subsets = nested_subsets(episodes, train, (12, 30, 100), seed=0)
+    assert [len(rows) for _, rows in subsets] == [12, 30, 40]  # 100 asked, 40 exist
+    assert np.array_equal(subsets[1][1][:12], subsets[0][1])
+    assert set(episodes[subsets[2][1]]) == set(range(8))
+
+
+def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
+    torch.set_num_threads(1)
+    images, force, episodes = _synthetic()
+    cfg = ForceConfig(sizes=(40, 190), epochs=1, min_updates=250, batch_size=16, test_fraction=0.2,
+                      val_fraction=0.1, seed=0)
+    report = train_force_sizes(images, force, episodes, cfg, out_dir=tmp_path)
+    small, large = report["sizes"]
+    assert report["test_episodes"] == 5 and large["train_samples"] == 190
+    # More data, lower test error; and far below both baselines.
+    assert large["model"]["mse_n2"] < small["model"]["mse_n2"]
+    assert large["model"]["mse_n2"] < 0.2 * large["train_mean"]["mse_n2"]
+    assert large["model"]["mse_n2"] < 0.2 * large["before_fine_tuning"]["mse_n2"]
+    assert (tmp_path / "force_model_190.pt").is_file()
+    table = markdown(report)
+    assert table.startswith("| Training samples |") and "| 190 |" in table
+
+
+def test_z_head_is_trained_when_z_is_given():
+    images, force, episodes = _synthetic(episodes=6, steps=4)
+    z = np.random.default_rng(0).normal(size=(len(force), 8)).astype(np.float32)
+    cfg = ForceConfig(sizes=(100,), epochs=1, min_updates=5, batch_size=16, test_fraction=0.2)
+    report = train_force_sizes(images, force, episodes, cfg, z=z)
+    assert report["uses_z"]
+    net = ForceNetwork(z_dim=8)
+    prediction, z_hat = net(torch.zeros(2, 1, 80, 80, dtype=torch.uint8))
+    assert prediction.shape == (2,) and z_hat.shape == (2, 8)
+
+
+def _force(args, cwd):
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.force", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_cli_reports_mse_per_size(tmp_path):
+    from cathsim_dmc.rl.collect import collect
+
+    collect(tmp_path / "data", "lcca", "type1", "forward", episodes=3, episodes_per_shard=2, seed=0,
+            task_options={"max_steps": 8}, show_progress=False)
+    result = _force([f"data={tmp_path}/data", "force.sizes=[8,1000]", "force.epochs=1", "force.min_updates=2",
+                     "progress_bar=false", f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    report = json.loads((tmp_path / "run" / "force.json").read_text())
+    assert [r["train_samples"] for r in report["sizes"]] == [8, 16] and report["test_samples"] == 8
+    for r in report["sizes"]:
+        assert r["model"]["rmse_n"] == pytest.approx(r["model"]["mse_n2"] ** 0.5)
+    assert "(all there is; 1,000 asked)" in (tmp_path / "run" / "force.md").read_text()
+
+
+@pytest.mark.parametrize("args, expected", [
+    ([], "data="),
+    (["data=/no/such/dataset"], "/no/such/dataset"),
+    (["data={empty}"], "holds no dataset"),
+    (["data={data}"], "not a readable"),
+    (["data={data}", "image_key=depth"], "pixels"),
+    (["data={data}", "force.sizes=[0]"], "force.sizes"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "trajectories.npz").write_bytes(b"")
+    args = [a.format(empty=tmp_path / "empty", data=tmp_path / "data") for a in args]
+    result = _force([*args, f"hydra.run.dir={tmp_path}/bad"], tmp_path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and expected in lines[0] and "Traceback" not in result.stderr, result.stderr
