@@ -90,8 +90,10 @@ class CenterlineExpert:
         self.retract_steps = retract_steps
         self.lost_margin_m = lost_margin_m
         self.settle_steps = 3
-        self.sweep_rate = np.deg2rad(12)  # per control step: a turn in 30 steps
-        self._sweep_depths_m = (0.0, 0.002, -0.002, 0.004)
+        self.axis_gain = 0.5  # of the full correction per step: a gentle turn the tip can follow
+        self.strokes_per_retreat = 3
+        self.retreat_radii = 2.0
+        self.backoffs_before_reset = 8
         self._episode_key = None
 
     def reset(self, env):
@@ -102,6 +104,8 @@ class CenterlineExpert:
         self._since_progress = 0
         self._retracting = 0
         self._at_depth = 0
+        self._backoffs = 0
+        self._retreat_to = None
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
 
@@ -124,7 +128,7 @@ class CenterlineExpert:
         radius = line.radius_at(s)
         remaining = line.length - s
         if s > self._best_s + self.min_progress_m:
-            self._best_s, self._since_progress = s, 0
+            self._best_s, self._since_progress, self._backoffs = s, 0, 0
         else:
             self._since_progress += 1
         lost = outside > self.lost_margin_m
@@ -133,6 +137,11 @@ class CenterlineExpert:
         if self._retracting == 0 and (lost or self._since_progress >= self.stall_steps):
             self._retracting = self.retract_steps
             self._since_progress = 0
+            self._backoffs += 1
+            if self._backoffs >= self.backoffs_before_reset:
+                # The best depth so far was reached along a path that no longer leads on
+                # (say, pressed into the wrong ostium); measure progress from here.
+                self._best_s, self._backoffs = s, 0
 
         # Aim: the bend (tip relative to the tip base, across the shaft) towards the
         # look-ahead point (relative to the tip base, across the shaft).
@@ -140,26 +149,21 @@ class CenterlineExpert:
         aim_point = line.at(min(s + self.lookahead_radii * radius, line.length))
         bend = _across(tip - base, shaft)
         aim = _across(aim_point - base, shaft)
-        aim_norm, bend_norm = np.linalg.norm(aim), np.linalg.norm(bend)
-        straight_ahead = aim_norm < 0.25 * np.linalg.norm(aim_point - base)
-        if bend_norm < 1e-9 or aim_norm < 1e-9:
-            angle = 0.0
-        else:
-            angle = float(np.arctan2(np.dot(shaft, np.cross(bend, aim)), np.dot(bend, aim)))
+        straight_ahead = np.linalg.norm(aim) < 0.25 * np.linalg.norm(aim_point - base)
+        angle = _signed_angle(bend, aim, shaft)
         rotation = np.clip(angle / self._max_rotation_step, -1.0, 1.0)
 
+        if self._retreat_to is not None:
+            # Out of the branch and back in: a fresh entry rests the tip on another wall.
+            if s > self._retreat_to:
+                return np.array([-1.0, rotation], dtype=np.float32)
+            self._retreat_to = None
         if remaining < self._max_insertion_step:
             self._at_depth += 1
         else:
             self._at_depth = 0
         if self._at_depth > self.settle_steps:
-            # At the target's depth but not within reach: the tip's own bend holds it off
-            # the axis. Sweep the bend round while the depth steps through a few
-            # millimetres either side of the target; some pose of the sweep gets there.
-            phase = (self._at_depth - self.settle_steps) * self.sweep_rate
-            depth = self._sweep_depths_m[int(phase // (2 * np.pi)) % len(self._sweep_depths_m)]
-            insertion = float(np.clip((remaining + depth) / self._max_insertion_step, -1.0, 1.0))
-            return np.array([insertion, self.sweep_rate / self._max_rotation_step], dtype=np.float32)
+            return self._end_game(tip, shaft, bend, remaining)
         if self._retracting > 0:
             self._retracting -= 1
             insertion = -1.0
@@ -169,6 +173,41 @@ class CenterlineExpert:
         else:
             insertion = 0.0
         return np.array([insertion, rotation], dtype=np.float32)
+
+    def _end_game(self, tip, shaft, bend, remaining):
+        """At the target's depth but not within reach: the tip rests on the branch wall.
+
+        The tip's own bend holds it off the axis, so turn the bend towards the axis (at
+        part gain, which the tip can follow) while stroking the wire one lumen radius past
+        the target and back, so the tip slides across the target's cross-section. Every
+        few strokes without success, retreat out of the branch and enter again.
+        """
+        line = self._line
+        target = line.at(line.length)
+        axis = line.at(line.length) - line.at(line.length - line.radius_at(line.length))
+        axis /= np.linalg.norm(axis)
+        to_axis = -_across(tip - target, axis)
+        angle = _signed_angle(bend, _across(to_axis, shaft), shaft)
+        rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
+
+        radius = line.radius_at(line.length)
+        half = max(2, int(np.ceil(radius / self._max_insertion_step)))
+        phase = self._at_depth - self.settle_steps - 1
+        stroke, k = divmod(phase, 2 * half)
+        past = radius * (k / half if k <= half else (2 * half - k) / half)
+        if stroke >= self.strokes_per_retreat:
+            self._retreat_to = line.length - self.retreat_radii * radius
+            self._at_depth = 0
+            return np.array([-1.0, rotation], dtype=np.float32)
+        insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))
+        return np.array([insertion, rotation], dtype=np.float32)
+
+
+def _signed_angle(a, b, axis) -> float:
+    """Angle from a to b about axis, in radians; 0 when either is degenerate."""
+    if np.linalg.norm(a) < 1e-9 or np.linalg.norm(b) < 1e-9:
+        return 0.0
+    return float(np.arctan2(np.dot(axis, np.cross(a, b)), np.dot(a, b)))
 
 
 def _across(v, axis):
