@@ -11,7 +11,12 @@ interventionalist does with an angled wire:
 * **advance only when aimed**: insertion is gated on the angle between the bend and the
   look-ahead direction; on straight stretches any orientation will do.
 * **back off when lost**: if the tip leaves the centerline's lumen (a wrong branch) or
-  progress along the centerline stalls, retract a few millimetres and aim again.
+  progress along the centerline stalls, retract a few millimetres and aim again; after
+  several back-offs without progress, measure progress afresh from where the tip is.
+* **end game**: at the target's depth but outside the 4 mm zone, the tip rests on the
+  branch wall (its bend reaches across most of the lumen). Turn the bend towards the
+  branch axis while stroking the wire one lumen radius past the target and back; every
+  few strokes, retreat out of the branch and enter again.
 
 Past the other ostia the look-ahead follows the arch's inner curve, which keeps the bend
 away from the branches on the outer curve; at the target ostium the centerline turns
