@@ -111,6 +111,12 @@ class CenterlineExpert:
         self._at_depth = 0
         self._backoffs = 0
         self._retreat_to = None
+        # The end game's geometry: the target, the branch axis arriving at it, its radius.
+        line = self._line
+        self._target = line.at(line.length)
+        self._target_radius = line.radius_at(line.length)
+        axis = self._target - line.at(line.length - self._target_radius)
+        self._target_axis = axis / np.linalg.norm(axis)
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
 
@@ -187,21 +193,17 @@ class CenterlineExpert:
         the target and back, so the tip slides across the target's cross-section. Every
         few strokes without success, retreat out of the branch and enter again.
         """
-        line = self._line
-        target = line.at(line.length)
-        axis = line.at(line.length) - line.at(line.length - line.radius_at(line.length))
-        axis /= np.linalg.norm(axis)
-        to_axis = -_across(tip - target, axis)
+        to_axis = -_across(tip - self._target, self._target_axis)
         angle = _signed_angle(bend, _across(to_axis, shaft), shaft)
         rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
 
-        radius = line.radius_at(line.length)
+        radius = self._target_radius
         half = max(2, int(np.ceil(radius / self._max_insertion_step)))
         phase = self._at_depth - self.settle_steps - 1
         stroke, k = divmod(phase, 2 * half)
         past = radius * (k / half if k <= half else (2 * half - k) / half)
         if stroke >= self.strokes_per_retreat:
-            self._retreat_to = line.length - self.retreat_radii * radius
+            self._retreat_to = self._line.length - self.retreat_radii * radius
             self._at_depth = 0
             return np.array([-1.0, rotation], dtype=np.float32)
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))

@@ -13,8 +13,9 @@ def bca_type3():
     return CathSimEnv(task="bca", aorta="type3", obs="internal")
 
 
-# Seeds whose tip reached the target's depth and then rode the BCA wall 5.4-5.5 mm from
-# the axis until step 300 with the earlier end game (a rotation sweep at fixed depths).
+# Seeds whose tip reached the target's depth and then rode the BCA wall, ending 5.5 and
+# 5.4 mm from the target at step 300, with the earlier end game (a rotation sweep at
+# fixed depths).
 @pytest.mark.parametrize("seed", [1, 3])
 def test_expert_reaches_the_type3_bca(bca_type3, seed):
     env, expert = bca_type3, CenterlineExpert()
