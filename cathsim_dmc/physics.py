@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from dm_control import mjcf
 
 _WARNINGS_DIVERGENT = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -91,6 +92,60 @@ def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
     forces *= sign[:, None]
     wire_ids = np.where(wire1[keep], geom[keep, 0], geom[keep, 1])
     return ContactForces(forces, contact.pos[:ncon][keep].copy(), wire_ids)
+
+
+class ConstraintSensingPhysics(mjcf.Physics):
+    """An `mjcf.Physics` that can report the constraint forces of every physics step.
+
+    dm_control's (legacy) step runs ``mj_step2`` (constraint solve, then integration)
+    followed by ``mj_step1`` (collision for the new state). A task's ``after_substep``
+    hook therefore sees the new contacts next to a stale, or freshly allocated,
+    ``efc_force``; reading forces there gives garbage. This class calls
+    ``after_constraint_solve(physics)``, when set, between the two halves, where
+    ``data.contact`` and ``data.efc_force`` belong to the same (pre-integration)
+    state. The sequence of MuJoCo calls is unchanged, so the dynamics are identical.
+    """
+
+    after_constraint_solve = None  # callable(physics), or None for the plain step
+
+    def _step_with_up_to_date_position_velocity(self, nstep: int = 1) -> None:
+        callback = self.after_constraint_solve
+        if callback is None or self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
+            super()._step_with_up_to_date_position_velocity(nstep)
+            return
+        model, data = self.model.ptr, self.data.ptr
+        for _ in range(nstep):
+            mujoco.mj_step2(model, data)
+            callback(self)
+            mujoco.mj_step1(model, data)
+
+
+def total_contact_force_n(physics, is_counted_pair: np.ndarray) -> float:
+    """Sum of contact force magnitudes (N) over contacts whose geom pair is counted.
+
+    The cheap path for once-per-physics-step use: reads ``data.contact`` and
+    ``data.efc_force`` as they are (no ``mj_forward``), so call it where they belong to
+    the same state (`ConstraintSensingPhysics.after_constraint_solve`). A force's
+    magnitude is taken in the contact frame, which is orthonormal, so no rotation is
+    needed. `is_counted_pair` is a symmetric (ngeom, ngeom) boolean matrix.
+    """
+    data = physics.data.ptr
+    ncon = data.ncon
+    if ncon == 0:
+        return 0.0
+    contact = data.contact
+    geom = contact.geom[:ncon]
+    address = contact.efc_address[:ncon]
+    keep = is_counted_pair[geom[:, 0], geom[:, 1]] & (address >= 0)
+    if not keep.any():
+        return 0.0
+    address, dim = address[keep], contact.dim[:ncon][keep]
+    force = data.efc_force
+    squared = force[address] ** 2
+    for row in (1, 2):  # tangential rows of elliptic cones; a frictionless contact has none
+        has_row = dim > row
+        squared[has_row] += force[address[has_row] + row] ** 2
+    return float(np.sqrt(squared).sum())
 
 
 def is_diverged(physics) -> bool:

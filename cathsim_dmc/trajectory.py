@@ -29,6 +29,9 @@ Optional keys (absent from files that did not record them; readers check):
   feature_z          (N, F)    float32, the feature vector Z of the ENN policy that acted,
                                computed from that row's observation (cathsim-collect)
   start_feature_z    (E, F)    float32, Z of the reset observation
+  mean_contact_force_n (N,)    float32, total wire-vessel contact force averaged over the
+                               physics steps of the control step, newtons (smoother than
+                               the end-of-step value; what a force sensor's low-pass sees)
   expert_action      (N, 2)    float32, the policy's own action when `action` (executed)
                                had exploration noise added (cathsim-collect action_noise_std)
   first_episode      ()        int, global index of this file's episode 0 (a shard of a
@@ -66,6 +69,7 @@ class TrajectoryRecorder:
     starts: list = field(default_factory=list)
     optimal_paths: list = field(default_factory=list)
     start_observations: dict = field(default_factory=dict)
+    mean_forces: list = field(default_factory=list)
 
     def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None) -> None:
         self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
@@ -88,11 +92,15 @@ class TrajectoryRecorder:
         }
         for key, value in values.items():
             self.rows[key].append(value)
+        if "mean_contact_force_n" in info:
+            self.mean_forces.append(info["mean_contact_force_n"])
 
     def arrays(self) -> dict:
         out = {key: np.asarray(self.rows[key], dtype=dtype) for key, dtype in _PER_STEP.items()}
         out["action"] = out["action"].reshape(-1, 2)
         out["tip_position_m"] = out["tip_position_m"].reshape(-1, 3)
+        if self.mean_forces and len(self.mean_forces) == len(out["episode"]):
+            out["mean_contact_force_n"] = np.asarray(self.mean_forces, dtype=np.float32)
         out.update({f"obs_{key}": np.stack(values) for key, values in self.observations.items()})
         out.update({f"start_obs_{key}": np.stack(values) for key, values in self.start_observations.items()})
         out.update(

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import dm_env.specs
-from dm_control import composer, mjcf
+from dm_control import composer
 from dm_control.mujoco import wrapper
 from dm_control.composer.observation import observable
 
@@ -28,8 +28,9 @@ class StepInfo:
 
     tip_position_m: np.ndarray
     target_distance_m: float
-    contact_force_n: float
+    contact_force_n: float  # total at the end of the control step
     max_contact_force_n: float
+    mean_contact_force_n: float  # total, averaged over the control step's physics steps
     success: bool
     diverged: bool
 
@@ -94,6 +95,8 @@ class Navigate(composer.Task):
         self._success = False
         self._diverged = False
         self._contacts = None  # cached per control step
+        self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
+        self._mean_force_n = 0.0
 
     # -- structure -------------------------------------------------------------
     @property
@@ -171,14 +174,29 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
+        self._wire_vessel_pairs = np.outer(self._wire_mask, self._vessel_mask)
+        self._wire_vessel_pairs |= self._wire_vessel_pairs.T
+        self._force_sum_n, self._force_samples = 0.0, 0
+        self._mean_force_n = 0.0
+        if isinstance(physics, cs_physics.ConstraintSensingPhysics):
+            # NavigationEnvironment builds one; in another composer.Environment the
+            # mean falls back to the end-of-step force.
+            physics.after_constraint_solve = self._add_physics_step_force
+
+    def _add_physics_step_force(self, physics):
+        self._force_sum_n += cs_physics.total_contact_force_n(physics, self._wire_vessel_pairs)
+        self._force_samples += 1
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
         self._contacts = None
+        self._force_sum_n, self._force_samples = 0.0, 0
 
     def after_step(self, physics, random_state):
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
+        self._mean_force_n = (self._force_sum_n / self._force_samples if self._force_samples
+                              else self.contact_forces(physics).total_n)
         if not self._diverged:
             self._success = self.target_distance_m(physics) <= self._delta_m
 
@@ -235,6 +253,7 @@ class Navigate(composer.Task):
             target_distance_m=self.target_distance_m(physics),
             contact_force_n=contacts.total_n,
             max_contact_force_n=contacts.max_n,
+            mean_contact_force_n=self._mean_force_n,
             success=self._success,
             diverged=self._diverged,
         )
@@ -264,14 +283,16 @@ class NavigationEnvironment(composer.Environment):
 
     def _recompile_physics(self):
         aorta = self._task.aorta
-        if aorta.hulls_in_mjcf:
-            return super()._recompile_physics()
         physics = getattr(self, "_physics", None)
         if physics:
             physics.free()
         root = self._task.root_entity.mjcf_model
+        if aorta.hulls_in_mjcf:
+            self._physics = cs_physics.ConstraintSensingPhysics.from_mjcf_model(root)
+            self._physics.legacy_step = self._legacy_step
+            return
         model = model_cache.compile_model(root, aorta.add_geoms, aorta.geoms_key, cache=self._cache_models)
-        self._physics = mjcf.Physics.from_model(wrapper.MjModel(model))
+        self._physics = cs_physics.ConstraintSensingPhysics.from_model(wrapper.MjModel(model))
         self._physics.legacy_step = self._legacy_step
 
     def step(self, action):

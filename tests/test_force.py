@@ -88,12 +88,18 @@ def test_cli_reports_mse_per_size(tmp_path):
     (["data={data}"], "not a readable"),
     (["data={data}", "image_key=depth"], "pixels"),
     (["data={data}", "force.sizes=[0]"], "force.sizes"),
+    (["data={data}", "label=peak_force"], "mean_contact_force_n"),
+    (["data={old}"], "label=mean_contact_force_n is not in the data"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
     (tmp_path / "empty").mkdir()
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "trajectories.npz").write_bytes(b"")
-    args = [a.format(empty=tmp_path / "empty", data=tmp_path / "data") for a in args]
+    # A trajectory file from before the step-mean force was recorded.
+    (tmp_path / "old").mkdir()
+    np.savez(tmp_path / "old" / "trajectories.npz", episode=np.zeros(3, np.int32), contact_force_n=np.zeros(3),
+             obs_pixels=np.zeros((3, 1, 80, 80), np.uint8))
+    args = [a.format(empty=tmp_path / "empty", data=tmp_path / "data", old=tmp_path / "old") for a in args]
     result = _force([*args, f"hydra.run.dir={tmp_path}/bad"], tmp_path)
     assert result.returncode == 2, result.stderr[-2000:]
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]

@@ -17,6 +17,9 @@ from pathlib import Path
 
 log = logging.getLogger("cathsim-force")
 IMAGE_KEYS = ("pixels", "guidewire_mask")
+# What the network predicts: the total contact force averaged over the control step's
+# physics steps, or the total at its last physics step (spiky: contacts chatter).
+FORCE_LABELS = ("mean_contact_force_n", "contact_force_n")
 
 
 def run(cfg) -> dict:
@@ -31,6 +34,8 @@ def run(cfg) -> dict:
 
     if cfg.image_key not in IMAGE_KEYS:
         raise ValueError(f"image_key={cfg.image_key!r}; choose one of {list(IMAGE_KEYS)}")
+    if cfg.label not in FORCE_LABELS:
+        raise ValueError(f"label={cfg.label!r}; choose one of {list(FORCE_LABELS)}")
     options = OmegaConf.to_container(cfg.force, resolve=True)
     options["sizes"] = tuple(int(s) for s in options["sizes"])
     force_cfg = ForceConfig(**options, seed=int(cfg.seed))
@@ -39,7 +44,10 @@ def run(cfg) -> dict:
     paths = dataset_paths(cfg.data)
     image = f"obs_{cfg.image_key}"
     use_z = force_cfg.z_coef > 0 and has_keys(paths, ("feature_z",))
-    arrays = load_arrays(paths, [image, "contact_force_n"] + (["feature_z"] if use_z else []))
+    if not has_keys(paths, (cfg.label,)):
+        raise ValueError(f"label={cfg.label} is not in the data {paths} (collected before it was recorded); "
+                         f"collect again or choose label=contact_force_n")
+    arrays = load_arrays(paths, [image, cfg.label] + (["feature_z"] if use_z else []))
     log.info("%d samples from %d episodes; Z %s", len(arrays["episode"]), len(set(arrays["episode"])),
              "regressed too" if use_z else "not in the data")
     if cfg.torch_threads:
@@ -60,9 +68,9 @@ def run(cfg) -> dict:
         if epoch == epochs:
             bar.close()
 
-    report = train_force_sizes(arrays[image], arrays["contact_force_n"], arrays["episode"], force_cfg,
+    report = train_force_sizes(arrays[image], arrays[cfg.label], arrays["episode"], force_cfg,
                                arrays.get("feature_z"), run_dir, progress)
-    report = {"data": paths, "image_key": cfg.image_key, "config": options, **report}
+    report = {"data": paths, "image_key": cfg.image_key, "label": cfg.label, "config": options, **report}
     (run_dir / "force.json").write_text(json.dumps(report, indent=2))
     table = markdown(report)
     (run_dir / "force.md").write_text(table)

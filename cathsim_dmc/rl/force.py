@@ -204,6 +204,6 @@ def markdown(report: dict) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(f"Test: {report['test_samples']:,} samples from {report['test_episodes']} held-out episodes "
-                 f"(force {report['test_force_mean_n']:.3f} ± {report['test_force_std_n']:.3f} N); "
+                 f"({report.get('label', 'force')} {report['test_force_mean_n']:.3f} ± {report['test_force_std_n']:.3f} N); "
                  f"Z regression {'on' if report['uses_z'] else 'off'}.")
     return "\n".join(lines) + "\n"

@@ -1,0 +1,82 @@
+"""Contact force averaged over a control step's physics steps (`mean_contact_force_n`)."""
+
+import numpy as np
+import pytest
+
+from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.policies import make_policy
+
+INTO_THE_ARCH = 45  # expert steps after which the BCA type I wire (seed 0) touches the wall
+
+
+def _drive_into_the_arch(env, sensing=True):
+    """Expert steps from seed 0; returns the infos. `sensing=False` detaches the callback."""
+    observation, _ = env.reset(seed=0)
+    if not sensing:
+        env.physics.after_constraint_solve = None
+    policy = make_policy("expert", seed=0)
+    infos = []
+    for _ in range(INTO_THE_ARCH):
+        observation, _, _, _, info = env.step(policy(observation, env))
+        infos.append(info)
+    return infos
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = CathSimEnv(task="bca", aorta="type1", obs="internal")
+    yield env
+    env.close()
+
+
+def test_sensing_leaves_the_dynamics_unchanged(env):
+    sensed = _drive_into_the_arch(env)
+    joints_sensed = env.physics.data.qpos.copy()
+    plain = _drive_into_the_arch(env, sensing=False)
+    np.testing.assert_array_equal(env.physics.data.qpos, joints_sensed)
+    np.testing.assert_array_equal([i["contact_force_n"] for i in plain], [i["contact_force_n"] for i in sensed])
+    # Without the callback the mean falls back to the end-of-step force.
+    assert all(i["mean_contact_force_n"] == i["contact_force_n"] for i in plain)
+
+
+def test_mean_is_the_average_over_every_physics_step(env):
+    _drive_into_the_arch(env)
+    physics, task = env.physics, env.task
+    wire = np.zeros(physics.model.ngeom, dtype=bool)
+    wire[physics.bind(task.guidewire.geoms).element_id] = True
+    vessel = np.zeros(physics.model.ngeom, dtype=bool)
+    vessel[task.aorta.wall_geom_ids(physics)] = True
+    task_callback, samples = physics.after_constraint_solve, []
+
+    def spy(p):
+        # The full contact-frame path, at the point where contacts and forces agree.
+        samples.append(cs_physics.wire_contacts(p, wire, recompute=False, is_vessel_geom=vessel).total_n)
+        task_callback(p)
+
+    physics.after_constraint_solve = spy
+    means, ends = [], []
+    for _ in range(10):
+        samples.clear()
+        _, _, _, _, info = env.step(np.array([0.5, 0.0], np.float32))
+        assert len(samples) == round(task.control_timestep / physics.model.opt.timestep)
+        assert info["mean_contact_force_n"] == pytest.approx(np.mean(samples), rel=1e-9, abs=1e-12)
+        means.append(info["mean_contact_force_n"])
+        ends.append(info["contact_force_n"])
+    assert max(means) > 0.01  # the wire is pushed along the arch wall: contact throughout
+
+
+def test_mean_and_end_of_step_force_agree_on_average_at_rest(env):
+    """Held still against the wall, the wire's contacts keep chattering (the number of
+    contacts changes from one physics step to the next). Both labels then estimate the
+    same load: their averages over the hold agree, and the step mean scatters less."""
+    _drive_into_the_arch(env)
+    ends, means = [], []
+    for step in range(50):
+        _, _, _, _, info = env.step(np.zeros(2, np.float32))
+        if step >= 20:  # after the push has relaxed
+            ends.append(info["contact_force_n"])
+            means.append(info["mean_contact_force_n"])
+    assert np.mean(means) > 0.01
+    assert np.mean(means) == pytest.approx(np.mean(ends), rel=0.15)
+    assert np.std(means) < 0.5 * np.std(ends)
