@@ -51,6 +51,9 @@ class CheckpointPolicy:
         self.image_options = dict(image_options or {})  # renderer, style it was trained with
 
     def __call__(self, observation, env) -> np.ndarray:
+        # A model with memory (a frame-stacking student) starts afresh with each episode.
+        if hasattr(self.model, "reset") and getattr(getattr(env, "task", None), "step_count", None) == 0:
+            self.model.reset()
         action, _ = self.model.predict(observation, deterministic=True)
         return np.asarray(action, dtype=np.float32)
 

@@ -89,6 +89,49 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
     assert load_bc_policy(tmp_path / "run" / "bc_policy.pt").image_key == "pixels"
 
 
+def test_stacked_frames_are_the_images_before_in_the_same_episode():
+    from cathsim_dmc.rl.data import stack_frames
+
+    images = np.arange(7, dtype=np.uint8).reshape(7, 1, 1, 1) * np.ones((1, 1, 2, 2), np.uint8)
+    episode = np.array([0, 0, 0, 0, 1, 1, 1])
+    step = np.array([1, 2, 3, 4, 1, 2, 3])
+    stacked = stack_frames(images, episode, step, 3)
+    assert stacked.shape == (7, 3, 2, 2)
+    # Oldest first; an episode's first image repeats where there is no earlier one, and
+    # nothing crosses from episode 0 into episode 1.
+    assert stacked[:, :, 0, 0].tolist() == [[0, 0, 0], [0, 0, 1], [0, 1, 2], [1, 2, 3],
+                                             [4, 4, 4], [4, 4, 5], [4, 5, 6]]
+    assert stack_frames(images, episode, step, 1) is images
+    with pytest.raises(ValueError, match="step order"):
+        stack_frames(images, episode, np.array([1, 2, 3, 4, 2, 3, 4]), 2)
+
+
+def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
+    from cathsim_dmc.policies import make_policy
+
+    class Episode:  # what CheckpointPolicy reads of an environment: the step count
+        def __init__(self):
+            self.task = type("T", (), {"step_count": 0})()
+
+    torch.manual_seed(0)
+    save_bc(BCNetwork((2, 80, 80)), tmp_path / "run", "pixels", frames=2)
+    policy = make_policy(str(tmp_path / "run"))
+    assert policy.model.frames == 2
+    net = policy.model.net
+    dark, bright = np.zeros((1, 80, 80), np.uint8), np.full((1, 80, 80), 200, np.uint8)
+
+    def expected(first, second):
+        with torch.no_grad():
+            return np.clip(net(torch.from_numpy(np.concatenate([first, second])[None]))[0][0].numpy(), -1, 1)
+
+    env = Episode()
+    np.testing.assert_allclose(policy({"pixels": dark}, env), expected(dark, dark), atol=1e-6)
+    env.task.step_count = 1
+    np.testing.assert_allclose(policy({"pixels": bright}, env), expected(dark, bright), atol=1e-6)
+    env.task.step_count = 0  # a new episode: the buffer starts again from its first image
+    np.testing.assert_allclose(policy({"pixels": bright}, env), expected(bright, bright), atol=1e-6)
+
+
 def _bc(args, cwd):
     return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bc", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=900)

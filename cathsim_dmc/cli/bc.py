@@ -43,7 +43,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy
     from cathsim_dmc.rl.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
-    from cathsim_dmc.rl.data import has_keys, load_arrays
+    from cathsim_dmc.rl.data import has_keys, load_arrays, stack_frames
 
     image_key = str(cfg.bc.image_key)
     if image_key not in PRESET_FOR_IMAGE:
@@ -52,6 +52,8 @@ def run(cfg) -> dict:
     bc_cfg = BCConfig(**options, seed=int(cfg.seed))
     if bc_cfg.epochs < 1 or bc_cfg.batch_size < 1:
         raise ValueError(f"bc.epochs={bc_cfg.epochs} and bc.batch_size={bc_cfg.batch_size} must be at least 1")
+    if bc_cfg.frames < 1:
+        raise ValueError(f"bc.frames={bc_cfg.frames} must be at least 1 (1: the paper's single image)")
     paths = dataset_paths(cfg.data)
     manifests = dataset_manifests(paths)
     images_opts = {**image_options(cfg.obs), **(manifests[0]["image_options"] if manifests else {})}
@@ -64,9 +66,10 @@ def run(cfg) -> dict:
 
     # Noise-injected demonstrations label each image with the expert's clean action.
     label = "expert_action" if has_keys(paths, ("expert_action",)) else "action"
-    keys = [f"obs_{image_key}", label] + (["feature_z"] if bc_cfg.distill_coef > 0 else [])
+    keys = [f"obs_{image_key}", label, "step"] + (["feature_z"] if bc_cfg.distill_coef > 0 else [])
     arrays = load_arrays(paths, keys, before_action=True)
-    images, actions = arrays[f"obs_{image_key}"], arrays[label]
+    images = stack_frames(arrays[f"obs_{image_key}"], arrays["episode"], arrays["step"], bc_cfg.frames)
+    actions = arrays[label]
     log.info("%d samples from %d episodes in %s; labels: %s", len(actions), len(set(arrays["episode"])), paths, label)
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -88,11 +91,12 @@ def run(cfg) -> dict:
         {"train_samples": int(len(result.train_rows)), "val_samples": int(len(result.val_rows)),
          "seconds": result.seconds, "seconds_per_epoch_per_10k": per_10k, "epochs": result.history}, indent=2))
     save_bc(result.net, run_dir, image_key, images_opts,
-            {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths})
+            {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths}, frames=bc_cfg.frames)
 
     if cfg.eval_episodes <= 0:
         return {"history": result.history}
-    policy = CheckpointPolicy(BCPolicyModel(result.net, image_key), PRESET_FOR_IMAGE[image_key], images_opts)
+    policy = CheckpointPolicy(BCPolicyModel(result.net, image_key, bc_cfg.frames), PRESET_FOR_IMAGE[image_key],
+                              images_opts)
     env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=policy.obs_preset, **images_opts,
                      **task_options(cfg))
     try:

@@ -18,6 +18,7 @@ import json
 import math
 import os
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -84,6 +85,7 @@ class BCConfig:
     l2_coef: float = 1e-5
     distill_coef: float = 0.0  # > 0 and Z in the data: regress Z from the image too
     val_fraction: float = 0.1
+    frames: int = 1            # the latest image and the frames - 1 before it, stacked as channels
     seed: int = 0
 
 
@@ -157,7 +159,8 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
 
 
 # -- checkpoints ------------------------------------------------------------------
-def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None = None, extra: dict | None = None) -> Path:
+def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None = None, extra: dict | None = None,
+           frames: int = 1) -> Path:
     """bc_policy.pt (weights + shape) and policy.json (how to evaluate it); atomic writes."""
     from cathsim_dmc.policies import POLICY_FILE
 
@@ -166,7 +169,7 @@ def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None 
     path = run_dir / BC_CHECKPOINT
     tmp = path.with_name(path.name + ".tmp")
     torch.save({"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim,
-                "image_key": image_key}, tmp)
+                "image_key": image_key, "frames": int(frames)}, tmp)
     os.replace(tmp, path)
     info = {"algo": "bc", "obs": PRESET_FOR_IMAGE[image_key], "image_key": image_key,
             "image_options": dict(image_options or {}), **(extra or {})}
@@ -175,13 +178,24 @@ def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None 
 
 
 class BCPolicyModel:
-    """A loaded student with SB3's `predict` signature, so CheckpointPolicy can drive it."""
+    """A loaded student with SB3's `predict` signature, so CheckpointPolicy can drive it.
 
-    def __init__(self, net: BCNetwork, image_key: str):
-        self.net, self.image_key = net.eval(), image_key
+    A student trained on `frames` > 1 stacked images keeps the latest ones; `reset()`
+    empties the buffer at an episode's start, and the first image then fills it.
+    """
+
+    def __init__(self, net: BCNetwork, image_key: str, frames: int = 1):
+        self.net, self.image_key, self.frames = net.eval(), image_key, int(frames)
+        self._recent = deque(maxlen=self.frames)
+
+    def reset(self) -> None:
+        self._recent.clear()
 
     def predict(self, observation, deterministic: bool = True):
         image = np.asarray(observation[self.image_key])
+        if self.frames > 1:
+            self._recent.extend([image] * (self.frames if not self._recent else 1))
+            image = np.concatenate(self._recent, axis=0)
         with torch.no_grad():
             mean, log_std, _ = self.net(torch.from_numpy(image[None]))
             action = mean if deterministic else torch.distributions.Normal(mean, log_std.exp()).sample()
@@ -192,7 +206,7 @@ def load_bc_policy(path) -> BCPolicyModel:
     checkpoint = torch.load(Path(path), map_location="cpu", weights_only=True)
     net = BCNetwork(checkpoint["image_shape"], checkpoint["z_dim"])
     net.load_state_dict(checkpoint["state_dict"])
-    return BCPolicyModel(net, checkpoint["image_key"])
+    return BCPolicyModel(net, checkpoint["image_key"], checkpoint.get("frames", 1))
 
 
 def epoch_seconds_per_10k(history: list, samples: int) -> float:

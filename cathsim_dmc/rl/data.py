@@ -135,6 +135,28 @@ def load_arrays(paths, keys, before_action: bool = False) -> dict:
     return out
 
 
+def stack_frames(images: np.ndarray, episode: np.ndarray, step: np.ndarray, frames: int) -> np.ndarray:
+    """(N, frames * C, H, W): each row's image preceded by the `frames - 1` images before
+    it in its episode, oldest first, stacked along the channels. Where an episode has no
+    earlier image its first one repeats, as a policy's frame buffer starts after a reset.
+
+    Rows of an episode must be contiguous and in step order (1, 2, ...), as `load_arrays`
+    returns them.
+    """
+    frames = int(frames)
+    if frames < 1:
+        raise ValueError(f"frames={frames} must be at least 1")
+    if frames == 1:
+        return images
+    rows = np.arange(len(images))
+    first = rows - (np.asarray(step) - 1)
+    if len(rows) and (first.min() < 0 or not np.array_equal(episode[first], episode)):
+        raise ValueError("stack_frames needs each episode's rows contiguous and in step order")
+    index = np.maximum(rows[:, None] - np.arange(frames - 1, -1, -1)[None, :], first[:, None])
+    n, channels, height, width = images.shape
+    return images[index].reshape(n, frames * channels, height, width)
+
+
 def split_by_episode(episode_ids, test_fraction: float, seed: int = 0):
     """(train rows, test rows): whole episodes, `test_fraction` of them held out."""
     ids = np.unique(episode_ids)
