@@ -50,6 +50,28 @@ def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
     assert table.startswith("| Training samples |") and "| 190 |" in table
 
 
+def test_test_outliers_are_also_scored_apart():
+    images, force, episodes = _synthetic(episodes=10, steps=4)
+    cfg = ForceConfig(sizes=(100,), epochs=1, min_updates=5, batch_size=16, test_fraction=0.2, outlier_n=10.0)
+    from cathsim_dmc.rl.data import split_by_episode
+
+    _, test_rows = split_by_episode(episodes, cfg.test_fraction, cfg.seed)
+    force = force.copy()
+    force[test_rows[0]] = 500.0  # one impulse-like label in the test set
+    report = train_force_sizes(images, force, episodes, cfg)
+    (only,) = report["sizes"]
+    assert report["test_outliers"] == 1 and report["test_force_max_n"] == pytest.approx(500.0)
+    kept = np.delete(force[test_rows], 0)
+    assert only["without_outliers"]["train_mean"]["mse_n2"] < only["train_mean"]["mse_n2"] / 100
+    train_mean = force[np.setdiff1d(np.arange(len(force)), test_rows)].mean()
+    assert only["without_outliers"]["train_mean"]["mse_n2"] == pytest.approx(np.mean((kept - train_mean) ** 2),
+                                                                             rel=1e-5)
+    assert "Without the 1 test sample(s) above 10 N" in markdown(report)
+    # No outlier: one table only.
+    report = train_force_sizes(images, np.minimum(force, 5.0), episodes, cfg)
+    assert "without_outliers" not in report["sizes"][0] and "Without the" not in markdown(report)
+
+
 def test_z_head_is_trained_when_z_is_given():
     images, force, episodes = _synthetic(episodes=6, steps=4)
     z = np.random.default_rng(0).normal(size=(len(force), 8)).astype(np.float32)
