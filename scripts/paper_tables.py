@@ -87,10 +87,17 @@ def force_table(folder) -> tuple:
     sizes = report["sizes"]
     header = ["Test MSE (N²) [RMSE (N)]"] + [f"{r['train_samples']:,} samples" for r in sizes]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for key, name in (("model", "Force network"), ("train_mean", "Train-set mean"),
-                      ("before_fine_tuning", "Before fine-tuning")):
+    rows = (("model", "Force network"), ("train_mean", "Train-set mean"), ("before_fine_tuning", "Before fine-tuning"))
+    for key, name in rows:
         lines.append("| " + " | ".join([name] + [f"{r[key]['mse_n2']:.4f} [{r[key]['rmse_n']:.3f}]"
                                                     for r in sizes]) + " |")
+    if all("without_outliers" in r for r in sizes):
+        lines.append("| " + " | ".join([f"*Without the {report['test_outliers']} test sample(s) above "
+                                        f"{report['outlier_n']:g} N:*"] + [""] * len(sizes)) + " |")
+        for key, name in rows:
+            lines.append("| " + " | ".join([name] + [f"{r['without_outliers'][key]['mse_n2']:.4f} "
+                                                        f"[{r['without_outliers'][key]['rmse_n']:.3f}]"
+                                                        for r in sizes]) + " |")
     return "\n".join(lines) + "\n\nDetail:\n\n" + markdown(report), report
 
 

@@ -21,10 +21,13 @@ def test_tables_from_runs(tmp_path, repo_root):
     sizes = [{"size_requested": n, "train_samples": n, **{k: {"mse_n2": m, "rmse_n": m ** 0.5} for k, m in
                                                              (("model", 0.04), ("train_mean", 0.16),
                                                               ("before_fine_tuning", 0.25))}} for n in (1000, 10000)]
+    for r, mse in zip(sizes, (0.03, 0.01)):  # scores without one outlier test sample
+        r["without_outliers"] = {"model": {"mse_n2": mse, "rmse_n": mse ** 0.5},
+                                 **{k: {"mse_n2": 0.09, "rmse_n": 0.3} for k in ("train_mean", "before_fine_tuning")}}
     (tmp_path / "force").mkdir()
     (tmp_path / "force" / "force.json").write_text(json.dumps(
         {"sizes": sizes, "test_samples": 10, "test_episodes": 2, "test_force_mean_n": 0.2, "test_force_std_n": 0.4,
-         "uses_z": False}))
+         "uses_z": False, "outlier_n": 10.0, "test_outliers": 1, "test_force_std_without_outliers_n": 0.3}))
     result = _table(["--bc", f"bca={tmp_path}/bc", "--force", f"{tmp_path}/force", "--out", f"{tmp_path}/out"],
                     repo_root, tmp_path)
     assert result.returncode == 0, result.stderr
@@ -36,6 +39,9 @@ def test_tables_from_runs(tmp_path, repo_root):
     force = (tmp_path / "out" / "force.md").read_text().splitlines()
     assert force[0] == "| Test MSE (N²) [RMSE (N)] | 1,000 samples | 10,000 samples |"
     assert force[2] == "| Force network | 0.0400 [0.200] | 0.0400 [0.200] |"
+    assert force[5].startswith("| *Without the 1 test sample(s) above 10 N:* |")
+    assert force[6] == "| Force network | 0.0300 [0.173] | 0.0100 [0.100] |"
+    assert force[7] == "| Train-set mean | 0.0900 [0.300] | 0.0900 [0.300] |"
 
 
 def test_bad_folder_is_one_line_and_exit_2(tmp_path, repo_root):
