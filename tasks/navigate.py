@@ -270,6 +270,9 @@ class NavigationEnvironment(composer.Environment):
     model is cached as MJB (keyed by the scene, the wall and the MuJoCo version), and
     the model compiled here is kept for the first reset (composer compiles a second
     time otherwise; no entity changes its MJCF per episode).
+
+    The physics is a `ConstraintSensingPhysics`, so that the task can average the wall
+    force over each control step's physics steps (`StepInfo.mean_contact_force_n`).
     """
 
     def __init__(self, task: Navigate, cache_models: bool = True, **kwargs):
