@@ -47,6 +47,35 @@ class ContactForces:
         return len(self.forces_n)
 
 
+def _wire_contact_rows(data, is_wire_geom: np.ndarray, is_vessel_geom: np.ndarray | None):
+    """(geom pairs, geom1-is-wire, keep) over ``data.contact[:ncon]``: the contacts
+    between a wire geom and a non-wire (vessel, if given) geom that have constraint rows."""
+    contact = data.contact
+    geom = contact.geom[:data.ncon]
+    wire1 = is_wire_geom[geom[:, 0]]
+    keep = (wire1 ^ is_wire_geom[geom[:, 1]]) & (contact.efc_address[:data.ncon] >= 0)
+    if is_vessel_geom is not None:
+        keep &= is_vessel_geom[geom[:, 0]] | is_vessel_geom[geom[:, 1]]
+    return geom, wire1, keep
+
+
+def _local_forces(data, keep: np.ndarray) -> np.ndarray:
+    """(n, 3) forces of the kept contacts in their contact frames (normal, tangential x2).
+
+    Elliptic cones (the arena's setting): a contact's rows are its normal, then its
+    tangential forces. A frictionless contact (dim 1) has only the normal row.
+    """
+    address = data.contact.efc_address[:data.ncon][keep]
+    dim = data.contact.dim[:data.ncon][keep]
+    local = np.zeros((len(address), 3))
+    local[:, 0] = data.efc_force[address]
+    has_friction = dim >= 3
+    if has_friction.any():
+        local[has_friction, 1] = data.efc_force[address[has_friction] + 1]
+        local[has_friction, 2] = data.efc_force[address[has_friction] + 2]
+    return local
+
+
 def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
                   is_vessel_geom: np.ndarray | None = None) -> ContactForces:
     """Contact forces between wire geoms and other geoms.
@@ -61,37 +90,20 @@ def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
     model, data = physics.model.ptr, physics.data.ptr
     if recompute:
         mujoco.mj_forward(model, data)
-    ncon = data.ncon
     empty = np.zeros((0, 3))
-    if ncon == 0:
+    if data.ncon == 0:
         return ContactForces(empty, empty, np.zeros(0, dtype=int))
-    contact = data.contact
-    geom = contact.geom[:ncon]
-    wire1 = is_wire_geom[geom[:, 0]]
-    wire2 = is_wire_geom[geom[:, 1]]
-    keep = (wire1 ^ wire2) & (contact.efc_address[:ncon] >= 0)
-    if is_vessel_geom is not None:
-        keep &= is_vessel_geom[geom[:, 0]] | is_vessel_geom[geom[:, 1]]
+    geom, wire1, keep = _wire_contact_rows(data, is_wire_geom, is_vessel_geom)
     if not keep.any():
         return ContactForces(empty, empty, np.zeros(0, dtype=int))
-    address = contact.efc_address[:ncon][keep]
-    dim = contact.dim[:ncon][keep]
-    frame = contact.frame[:ncon][keep].reshape(-1, 3, 3)
-    # Elliptic cones (the arena's setting): rows are normal, then tangential forces in
-    # the contact frame. A frictionless contact (dim 1) has only the normal row.
-    local = np.zeros((len(address), 3))
-    local[:, 0] = data.efc_force[address]
-    has_friction = dim >= 3
-    if has_friction.any():
-        local[has_friction, 1] = data.efc_force[address[has_friction] + 1]
-        local[has_friction, 2] = data.efc_force[address[has_friction] + 2]
-    forces = np.einsum("nij,ni->nj", frame, local)
+    frame = data.contact.frame[:data.ncon][keep].reshape(-1, 3, 3)
+    forces = np.einsum("nij,ni->nj", frame, _local_forces(data, keep))
     # The contact normal points from geom1 to geom2: make every force the one acting on
     # the non-wire geom (the vessel), whichever side the wire is.
     sign = np.where(wire1[keep], 1.0, -1.0)
     forces *= sign[:, None]
     wire_ids = np.where(wire1[keep], geom[keep, 0], geom[keep, 1])
-    return ContactForces(forces, contact.pos[:ncon][keep].copy(), wire_ids)
+    return ContactForces(forces, data.contact.pos[:data.ncon][keep].copy(), wire_ids)
 
 
 class ConstraintSensingPhysics(mjcf.Physics):
@@ -120,32 +132,21 @@ class ConstraintSensingPhysics(mjcf.Physics):
             mujoco.mj_step1(model, data)
 
 
-def total_contact_force_n(physics, is_counted_pair: np.ndarray) -> float:
-    """Sum of contact force magnitudes (N) over contacts whose geom pair is counted.
+def total_contact_force_n(physics, is_wire_geom: np.ndarray, is_vessel_geom: np.ndarray) -> float:
+    """`wire_contacts(...).total_n` without ``mj_forward`` and without rotating to world.
 
     The cheap path for once-per-physics-step use: reads ``data.contact`` and
-    ``data.efc_force`` as they are (no ``mj_forward``), so call it where they belong to
-    the same state (`ConstraintSensingPhysics.after_constraint_solve`). A force's
-    magnitude is taken in the contact frame, which is orthonormal, so no rotation is
-    needed. `is_counted_pair` is a symmetric (ngeom, ngeom) boolean matrix.
+    ``data.efc_force`` as they are, so call it where they belong to the same state
+    (`ConstraintSensingPhysics.after_constraint_solve`). A force's magnitude is the same
+    in the (orthonormal) contact frame.
     """
     data = physics.data.ptr
-    ncon = data.ncon
-    if ncon == 0:
+    if data.ncon == 0:
         return 0.0
-    contact = data.contact
-    geom = contact.geom[:ncon]
-    address = contact.efc_address[:ncon]
-    keep = is_counted_pair[geom[:, 0], geom[:, 1]] & (address >= 0)
+    _, _, keep = _wire_contact_rows(data, is_wire_geom, is_vessel_geom)
     if not keep.any():
         return 0.0
-    address, dim = address[keep], contact.dim[:ncon][keep]
-    force = data.efc_force
-    squared = force[address] ** 2
-    for row in (1, 2):  # tangential rows of elliptic cones; a frictionless contact has none
-        has_row = dim > row
-        squared[has_row] += force[address[has_row] + row] ** 2
-    return float(np.sqrt(squared).sum())
+    return float(np.linalg.norm(_local_forces(data, keep), axis=1).sum())
 
 
 def is_diverged(physics) -> bool:

@@ -174,9 +174,6 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
-        self._wire_vessel_pairs = np.outer(self._wire_mask, self._vessel_mask)
-        self._wire_vessel_pairs |= self._wire_vessel_pairs.T
-        self._force_sum_n, self._force_samples = 0.0, 0
         self._mean_force_n = 0.0
         if isinstance(physics, cs_physics.ConstraintSensingPhysics):
             # NavigationEnvironment builds one; in another composer.Environment the
@@ -184,7 +181,7 @@ class Navigate(composer.Task):
             physics.after_constraint_solve = self._add_physics_step_force
 
     def _add_physics_step_force(self, physics):
-        self._force_sum_n += cs_physics.total_contact_force_n(physics, self._wire_vessel_pairs)
+        self._force_sum_n += cs_physics.total_contact_force_n(physics, self._wire_mask, self._vessel_mask)
         self._force_samples += 1
 
     def before_step(self, physics, action, random_state):
