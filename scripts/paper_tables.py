@@ -87,17 +87,18 @@ def force_table(folder) -> tuple:
     sizes = report["sizes"]
     header = ["Test MSE (N²) [RMSE (N)]"] + [f"{r['train_samples']:,} samples" for r in sizes]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    rows = (("model", "Force network"), ("train_mean", "Train-set mean"), ("before_fine_tuning", "Before fine-tuning"))
-    for key, name in rows:
-        lines.append("| " + " | ".join([name] + [f"{r[key]['mse_n2']:.4f} [{r[key]['rmse_n']:.3f}]"
-                                                    for r in sizes]) + " |")
+
+    def add_rows(scores):  # scores: one {"model": ..., "train_mean": ..., ...} per size
+        for key, name in (("model", "Force network"), ("train_mean", "Train-set mean"),
+                          ("before_fine_tuning", "Before fine-tuning")):
+            lines.append("| " + " | ".join([name] + [f"{c[key]['mse_n2']:.4f} [{c[key]['rmse_n']:.3f}]"
+                                                        for c in scores]) + " |")
+
+    add_rows(sizes)
     if all("without_outliers" in r for r in sizes):
         lines.append("| " + " | ".join([f"*Without the {report['test_outliers']} test sample(s) above "
                                         f"{report['outlier_n']:g} N:*"] + [""] * len(sizes)) + " |")
-        for key, name in rows:
-            lines.append("| " + " | ".join([name] + [f"{r['without_outliers'][key]['mse_n2']:.4f} "
-                                                        f"[{r['without_outliers'][key]['rmse_n']:.3f}]"
-                                                        for r in sizes]) + " |")
+        add_rows([r["without_outliers"] for r in sizes])
     return "\n".join(lines) + "\n\nDetail:\n\n" + markdown(report), report
 
 
