@@ -14,6 +14,21 @@ from pathlib import Path
 import numpy as np
 
 POLICY_FILE = "policy.json"  # next to a checkpoint: what it needs to be evaluated
+NORMALIZER_SUFFIX = ".vecnormalize.pkl"  # <checkpoint>.vecnormalize.pkl: its observation normaliser
+
+
+def normalizer_path(checkpoint) -> Path:
+    """Where the observation normaliser of `checkpoint` (a .zip) is kept: beside it."""
+    checkpoint = Path(checkpoint)
+    return checkpoint.with_name(checkpoint.stem + NORMALIZER_SUFFIX)
+
+
+def load_normalizer(path):
+    """A saved SB3 VecNormalize (observation statistics), frozen for evaluation."""
+    with open(path, "rb") as f:
+        normalizer = pickle.load(f)
+    normalizer.training = False
+    return normalizer
 
 
 class ForwardPolicy:
@@ -45,15 +60,20 @@ BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomP
 class CheckpointPolicy:
     """A trained agent loaded from a checkpoint; acts deterministically on observations."""
 
-    def __init__(self, model, obs_preset: str, image_options: dict | None = None):
+    def __init__(self, model, obs_preset: str, image_options: dict | None = None, env_options: dict | None = None,
+                 normalizer=None):
         self.model = model
         self.obs_preset = obs_preset
         self.image_options = dict(image_options or {})  # renderer, style it was trained with
+        self.env_options = dict(env_options or {})  # e.g. the insertion limit it was trained with
+        self.normalizer = normalizer  # SB3 VecNormalize with the training's observation statistics
 
     def __call__(self, observation, env) -> np.ndarray:
         # A model with memory (a frame-stacking student) starts afresh with each episode.
         if hasattr(self.model, "reset") and getattr(getattr(env, "task", None), "step_count", None) == 0:
             self.model.reset()
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
         action, _ = self.model.predict(observation, deterministic=True)
         return np.asarray(action, dtype=np.float32)
 
@@ -102,7 +122,17 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
     except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
         raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
-    return CheckpointPolicy(model, info["obs"], info.get("image_options"))
+    normalizer = None
+    if info.get("normalize_observations"):
+        stats = normalizer_path(model_path)
+        if not stats.is_file():
+            raise FileNotFoundError(f"{model_path} was trained with normalised observations but {stats.name} "
+                                    f"is missing beside it")
+        try:
+            normalizer = load_normalizer(stats)
+        except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
+            raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"), info.get("env_options"), normalizer)
 
 
 def make_policy(name: str, seed: int = 0):

@@ -11,6 +11,7 @@ from dm_control.mujoco import wrapper
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import model_cache
+from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
@@ -20,6 +21,11 @@ CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
 MAX_STEPS = 300  # the paper's episode limit
 SUCCESS_RADIUS_M = 0.004  # the paper's delta
 SUCCESS_REWARD = 10.0
+# The distance a dense reward penalises: "euclidean" (the paper's: straight line from the
+# tip to the target) or "geodesic" (along the vessel, so a wrong branch scores worse than
+# the right ostium; see `Navigate.reward_distance_m`).
+REWARDS = ("euclidean", "geodesic")
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force")
 
 
 @dataclass
@@ -33,6 +39,10 @@ class StepInfo:
     mean_contact_force_n: float  # total, averaged over the control step's physics steps
     success: bool
     diverged: bool
+    path_distance_m: float  # tip to target along the vessel (geodesic), metres
+    insertion_m: float  # carriage travel from the start of the stroke, metres
+    slack_m: float  # carriage advance minus tip advance along the vessel, metres
+    drive_force_n: float  # insertion drive force, newtons
 
 
 class Navigate(composer.Task):
@@ -42,6 +52,13 @@ class Navigate(composer.Task):
     the episode), otherwise minus the distance in metres (dense) or 0 (sparse). After
     `max_steps` control steps the episode is truncated (discount 1). A diverged
     simulation also truncates, with `diverged` set in `step_info`.
+
+    Training options (success, the time limit and the metrics do not depend on them):
+    `reward="geodesic"` measures the distance along the vessel instead of the straight
+    line; `progress_weight` adds that weight times the step's progress towards the target
+    in units of one full-speed insertion step (potential-style shaping); and
+    `insertion_limit_margin_m` stops the carriage at the centerline length from the entry
+    to the target plus this margin (None: the full stroke).
     """
 
     def __init__(
@@ -60,6 +77,10 @@ class Navigate(composer.Task):
         start_rotation_rad: float = np.pi,
         start_rotation_jitter_rad: float = 0.3,
         blood_drag: bool = False,
+        reward: str = "euclidean",
+        progress_weight: float = 0.0,
+        insertion_limit_margin_m: float | None = None,
+        extra_observations: tuple = (),
     ):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
@@ -75,6 +96,21 @@ class Navigate(composer.Task):
         self._start_rotation_rad = float(start_rotation_rad)
         self._rotation_jitter_rad = float(start_rotation_jitter_rad)
         self._settings = observations
+        if reward not in REWARDS:
+            raise ValueError(f"reward={reward!r}; choose one of {list(REWARDS)}")
+        if not np.isfinite(progress_weight) or progress_weight < 0:
+            raise ValueError(f"progress_weight={progress_weight!r} must be a finite number >= 0")
+        if insertion_limit_margin_m is not None and not insertion_limit_margin_m >= 0:
+            raise ValueError(f"insertion_limit_margin_m={insertion_limit_margin_m!r} must be >= 0 (metres) or None")
+        unknown = sorted(set(extra_observations) - set(EXTRA_OBSERVATIONS))
+        if unknown:
+            raise ValueError(f"extra_observations {unknown} unknown; choose from {list(EXTRA_OBSERVATIONS)}")
+        self._reward_kind = reward
+        self._progress_weight = float(progress_weight)
+        self._extra_observations = tuple(extra_observations)
+        self._paths = CenterlineTree.from_asset(aorta.asset)
+        self._insertion_limit_m = (None if insertion_limit_margin_m is None
+                                   else self._paths.lines[target].length_m + float(insertion_limit_margin_m))
 
         self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag)
         self._arena.attach(aorta)
@@ -97,6 +133,8 @@ class Navigate(composer.Task):
         self._contacts = None  # cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
+        self._reward_distance_m = self._previous_reward_distance_m = 0.0
+        self._start_progress_m = 0.0  # tip progress at the start minus the carriage's (set per episode)
 
     # -- structure -------------------------------------------------------------
     @property
@@ -128,6 +166,16 @@ class Navigate(composer.Task):
         return self._max_steps
 
     @property
+    def paths(self) -> CenterlineTree:
+        """The aorta's centerline tree (distances along the vessel)."""
+        return self._paths
+
+    @property
+    def insertion_limit_m(self) -> float | None:
+        """The carriage's travel limit in metres (None: the robot's full stroke)."""
+        return self._insertion_limit_m
+
+    @property
     def top_view(self):
         """The `TopView` drawing this task's `pixels` and `guidewire_mask`."""
         return self._top_view
@@ -141,12 +189,19 @@ class Navigate(composer.Task):
         return self._task_observables
 
     def _build_task_observables(self, settings: ObservationSettings):
-        wire_and_robot = list(self._robot.joints) + list(self._guidewire.joints)
+        robot, wire_joints = self._robot, self._guidewire.joints
         self._top_view = TopView(settings.image_size, renderer=settings.renderer, wire=self._guidewire,
                                  vessel_geom_id=self._aorta.visual_geom_id)
         obs = {
-            "joint_pos": observable.MJCFFeature("qpos", wire_and_robot),
-            "joint_vel": observable.MJCFFeature("qvel", wire_and_robot),
+            # The robot's pose as bounded features (insertion / stroke, sin and cos of the
+            # rotation, which is never wrapped otherwise), then the wire's bending angles (rad).
+            "joint_pos": observable.Generic(lambda physics: np.concatenate(
+                [robot.pose_features(physics), physics.bind(wire_joints).qpos])),
+            # Robot rates as fractions of the drive's maximum speeds, then the wire's (rad/s).
+            "joint_vel": observable.Generic(lambda physics: np.concatenate(
+                [robot.rate_features(physics), physics.bind(wire_joints).qvel])),
+            "wire_slack": observable.Generic(lambda physics: np.array([self.slack_m(physics)])),
+            "drive_force": observable.Generic(lambda physics: np.array([robot.drive_force_n(physics)])),
             "pixels": observable.Generic(lambda physics: self._top_view.image(physics, settings.style)),
             "guidewire_mask": observable.Generic(self._top_view.mask),
             "tip_position": observable.MJCFFeature("xpos", self._guidewire.tip_site),
@@ -154,7 +209,7 @@ class Navigate(composer.Task):
                 lambda physics: np.array([self.contact_forces(physics).total_n], dtype=np.float64)),
         }
         for name, obs_item in obs.items():
-            obs_item.enabled = name in settings.enabled
+            obs_item.enabled = name in settings.enabled or name in self._extra_observations
         if settings.noise_std > 0:
             obs["pixels"].corruptor = image_noise(settings.noise_std)
         return obs
@@ -166,6 +221,7 @@ class Navigate(composer.Task):
         rotation = self._start_rotation_rad + random_state.uniform(
             -self._rotation_jitter_rad, self._rotation_jitter_rad)
         self._robot.set_pose(physics, insertion, rotation)
+        self._robot.set_insertion_limit(physics, self._insertion_limit_m)
         self._step_count = 0
         self._success = False
         self._diverged = False
@@ -175,6 +231,9 @@ class Navigate(composer.Task):
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
         self._mean_force_n = 0.0
+        self._start_progress_m = self._paths.progress_m(self.tip_position_m(physics)) - insertion
+        self._reward_distance_m = self.reward_distance_m(physics)
+        self._previous_reward_distance_m = self._reward_distance_m
         if isinstance(physics, cs_physics.ConstraintSensingPhysics):
             # NavigationEnvironment builds one; in another composer.Environment the
             # mean falls back to the end-of-step force.
@@ -196,6 +255,8 @@ class Navigate(composer.Task):
                               else self.contact_forces(physics).total_n)
         if not self._diverged:
             self._success = self.target_distance_m(physics) <= self._delta_m
+            self._previous_reward_distance_m = self._reward_distance_m
+            self._reward_distance_m = self.reward_distance_m(physics)
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -206,7 +267,11 @@ class Navigate(composer.Task):
             return 0.0
         if self._success:
             return self._success_reward
-        return -self.target_distance_m(physics) if self._dense else 0.0
+        reward = -self._reward_distance_m if self._dense else 0.0
+        if self._progress_weight:
+            step_m = self._robot.max_insertion_speed_m_s * self.control_timestep
+            reward += self._progress_weight * (self._previous_reward_distance_m - self._reward_distance_m) / step_m
+        return reward
 
     def should_terminate_episode(self, physics):
         return self._success or self._diverged or self._step_count >= self._max_steps
@@ -221,6 +286,34 @@ class Navigate(composer.Task):
 
     def target_distance_m(self, physics) -> float:
         return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
+
+    def path_distance_m(self, physics) -> float:
+        """Tip to target along the vessel (`CenterlineTree.geodesic_distance_m`), metres."""
+        return self._paths.geodesic_distance_m(self.tip_position_m(physics), self._target_name)
+
+    def reward_distance_m(self, physics) -> float:
+        """The distance the dense reward penalises, in metres.
+
+        "euclidean": the straight line from tip to target (the paper's). "geodesic": the
+        larger of the distance along the vessel and the straight line. Along the vessel, a
+        tip deep in a wrong branch is 2-3x farther than one at the right ostium (the
+        straight line ranks it closer); the straight line still counts near the target,
+        where a tip riding the branch wall is level with the target but off its axis.
+        """
+        euclidean = self.target_distance_m(physics)
+        if self._reward_kind == "euclidean":
+            return euclidean
+        return max(self.path_distance_m(physics), euclidean)
+
+    def slack_m(self, physics) -> float:
+        """Carriage advance minus tip advance along the vessel since the start, metres.
+
+        Near zero (a few mm: the wire takes the outer curve) while the wire follows the
+        drive; it grows when the tip stalls and the shaft buckles behind it. A follower
+        robot sees the same condition as a rising drive force (`drive_force_n`).
+        """
+        progress = self._paths.progress_m(self.tip_position_m(physics)) - self._start_progress_m
+        return self._robot.insertion_m(physics) - progress
 
     def contact_forces(self, physics) -> cs_physics.ContactForces:
         """Wire-vessel contact forces for the current state (computed once per step).
@@ -253,6 +346,10 @@ class Navigate(composer.Task):
             mean_contact_force_n=self._mean_force_n,
             success=self._success,
             diverged=self._diverged,
+            path_distance_m=self.path_distance_m(physics),
+            insertion_m=self._robot.insertion_m(physics),
+            slack_m=self.slack_m(physics),
+            drive_force_n=self._robot.drive_force_n(physics),
         )
 
 

@@ -171,10 +171,13 @@ def evaluate(cfg) -> dict:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     policy = make_policy(str(cfg.policy), seed=cfg.seed)
     obs, images = cfg.obs.name, image_options(cfg.obs)
+    extra = {}
     if isinstance(policy, CheckpointPolicy):  # evaluated on what it was trained on
         obs, images = policy.obs_preset, {**images, **policy.image_options}
+        extra.update(policy.env_options)
     params = cfg.aorta.get("params")
-    extra = {"aorta_params": OmegaConf.to_container(params)} if params is not None else {}
+    if params is not None:
+        extra["aorta_params"] = OmegaConf.to_container(params)
     env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=obs, **extra, **images,
                      delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward,
                      dense=cfg.task.dense, max_steps=cfg.task.max_steps)

@@ -18,16 +18,31 @@ from pathlib import Path
 log = logging.getLogger("cathsim-train")
 
 
-def _task_kwargs(cfg) -> dict:
+def _env_options(cfg) -> dict:
+    """Options that change what the agent sees or drives: the same in training and evaluation."""
+    options = {}
+    if cfg.task.get("insertion_limit_margin_m") is not None:
+        options["insertion_limit_margin_m"] = float(cfg.task.insertion_limit_margin_m)
+    extra = cfg.obs.get("extra")
+    if extra:
+        options["extra_observations"] = tuple(extra)
+    return options
+
+
+def _task_kwargs(cfg, training: bool = False) -> dict:
+    """tasks.load keyword arguments. The training reward (`reward=`) is used only with
+    `training`: evaluation always scores the paper's task."""
     from omegaconf import OmegaConf
 
     from cathsim_dmc.cli.eval import image_options
 
     kwargs = dict(delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward, dense=cfg.task.dense,
-                  max_steps=cfg.task.max_steps, **image_options(cfg.obs))
+                  max_steps=cfg.task.max_steps, **image_options(cfg.obs), **_env_options(cfg))
     params = cfg.aorta.get("params")
     if params is not None:
         kwargs["aorta_params"] = OmegaConf.to_container(params)
+    if training and cfg.get("reward") is not None:
+        kwargs.update(reward=cfg.reward.kind, progress_weight=float(cfg.reward.progress_weight))
     return kwargs
 
 
@@ -37,8 +52,8 @@ def run(cfg) -> dict:
 
     from cathsim_dmc.cli.eval import evaluate_policy, image_options
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy
-    from cathsim_dmc.rl.train import make_vec_env, train
+    from cathsim_dmc.policies import CheckpointPolicy, load_normalizer, normalizer_path
+    from cathsim_dmc.rl.train import BEST_MODEL, CHECKPOINT_DIR, best_record, make_vec_env, train
 
     resume = cfg.get("resume")
     if resume:
@@ -63,21 +78,38 @@ def run(cfg) -> dict:
 
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     trainer = OmegaConf.to_container(cfg.trainer, resolve=True)
+    demos = OmegaConf.to_container(cfg.demos, resolve=True) if cfg.get("demos") is not None else None
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
-    env = make_vec_env(task, aorta, obs, cfg.seed, cfg.trainer.n_envs, _task_kwargs(cfg))
+    train_kwargs, eval_kwargs = _task_kwargs(cfg, training=True), _task_kwargs(cfg)
+    env = make_vec_env(task, aorta, obs, cfg.seed, cfg.trainer.n_envs, train_kwargs)
     try:
-        kwargs = _task_kwargs(cfg)
         result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume),
-                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **kwargs),
-                       image_options=image_options(cfg.obs))
+                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **eval_kwargs),
+                       image_options=image_options(cfg.obs), demos=demos,
+                       make_demo_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **train_kwargs),
+                       env_options=_env_options(cfg))
     finally:
         env.close()
     log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
              result.steps / max(result.seconds, 1e-9))
 
-    eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **_task_kwargs(cfg))
+    model, label = result.model, f"sac-{obs}"
+    normalizer = model.get_vec_normalize_env()
+    best = best_record(run_dir)
+    if cfg.trainer.get("final_policy", "last") == "best" and best is not None:
+        from stable_baselines3 import SAC
+
+        model = SAC.load(run_dir / CHECKPOINT_DIR / BEST_MODEL, device=cfg.trainer.device)
+        if normalizer is not None:
+            normalizer = load_normalizer(normalizer_path(run_dir / CHECKPOINT_DIR / BEST_MODEL))
+        log.info("evaluating best.zip (step %d: %.0f%% success in the periodic evaluation)", best["step"],
+                 100 * best["success_rate"])
+    if normalizer is not None:
+        normalizer.training = False
+    eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **eval_kwargs)
     try:
-        report = evaluate_policy(eval_env, CheckpointPolicy(result.model, obs, image_options(cfg.obs)), f"sac-{obs}",
+        policy = CheckpointPolicy(model, obs, image_options(cfg.obs), _env_options(cfg), normalizer)
+        report = evaluate_policy(eval_env, policy, label,
                                  cfg.trainer.eval_episodes,
                                  seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": int(cfg.seed)})
@@ -94,6 +126,12 @@ def _algo_choices() -> list:
     return sorted(path.stem for path in (conf_root() / "algo").glob("*.yaml"))
 
 
+def _reward_choices() -> list:
+    from cathsim_dmc.paths import conf_root
+
+    return sorted(path.stem for path in (conf_root() / "reward").glob("*.yaml"))
+
+
 def main():
     from cathsim_dmc.cli._common import run_hydra
     from cathsim_dmc.observables import OBSERVATION_PRESETS
@@ -101,7 +139,7 @@ def main():
 
     run_hydra(run, "train", {
         "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
-        "algo": _algo_choices,
+        "algo": _algo_choices, "reward": _reward_choices,
     })
 
 

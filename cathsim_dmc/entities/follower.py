@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 from dm_control import composer, mjcf
+from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
 from cathsim_dmc.observables import JointObservables
@@ -172,6 +173,35 @@ class FollowerRobot(composer.Entity):
         action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         physics.bind(self.actuators).ctrl = action * [self.max_insertion_speed_m_s, self.max_rotation_speed_rad_s]
 
+    def set_insertion_limit(self, physics, limit_m: float | None) -> float:
+        """Limits the carriage's travel to `limit_m` (None: the full stroke); returns the limit.
+
+        An operator sets a follower's travel from the planned path length, so that a wire
+        stalled in a branch meets a stop instead of being fed on until it buckles. The
+        limit bounds the insertion servo's set point (its actuator state), not the joint.
+        """
+        limit = self.stroke_m if limit_m is None else float(np.clip(limit_m, 0.0, self.stroke_m))
+        physics.bind(self._insertion_actuator).actrange = [0.0, limit]
+        return limit
+
+    def insertion_m(self, physics) -> float:
+        """Carriage travel from the start of the stroke, in metres."""
+        return float(np.ravel(physics.bind(self._insertion).qpos)[0])
+
+    def drive_force_n(self, physics) -> float:
+        """Force the insertion drive applies to the carriage, in newtons (positive pushes)."""
+        return float(np.ravel(physics.bind(self._insertion_actuator).force)[0])
+
+    def pose_features(self, physics) -> np.ndarray:
+        """[insertion / stroke, sin(rotation), cos(rotation)]: bounded and without wrap-around."""
+        insertion, rotation = physics.bind(self.joints).qpos
+        return np.array([insertion / self.stroke_m, np.sin(rotation), np.cos(rotation)])
+
+    def rate_features(self, physics) -> np.ndarray:
+        """Joint rates as fractions of the drive's maximum speeds (in [-1, 1] when driven)."""
+        rates = physics.bind(self.joints).qvel
+        return rates / [self.max_insertion_speed_m_s, self.max_rotation_speed_rad_s]
+
     def set_pose(self, physics, insertion_m: float = 0.0, rotation_rad: float = 0.0):
         """Puts the carriage at `insertion_m` and the platform at `rotation_rad`, at rest.
 
@@ -187,3 +217,18 @@ class FollowerRobot(composer.Entity):
 
 class FollowerRobotObservables(JointObservables):
     """joint_pos: insertion depth (m) and rotation angle (rad); joint_vel: their rates."""
+
+    @composer.observable
+    def pose_features(self):
+        """[insertion / stroke, sin(rotation), cos(rotation)] (see `FollowerRobot.pose_features`)."""
+        return observable.Generic(self._entity.pose_features)
+
+    @composer.observable
+    def rate_features(self):
+        """Joint rates as fractions of the maximum drive speeds."""
+        return observable.Generic(self._entity.rate_features)
+
+    @composer.observable
+    def drive_force(self):
+        """Insertion drive force in newtons, as the robot measures it at its motor."""
+        return observable.Generic(lambda physics: np.array([self._entity.drive_force_n(physics)]))

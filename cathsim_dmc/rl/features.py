@@ -6,7 +6,12 @@ The paper's ENN encodes every modality separately and concatenates the codes int
   Conv2d(32, 8, stride 4) -> Conv2d(64, 4, stride 2) -> Conv2d(64, 3, stride 1), ReLU
   after each, flatten, Linear(256) + ReLU;
 * the joint positions and velocities, concatenated, go through Linear(256) -> ReLU ->
-  Linear(128) -> ReLU.
+  Linear(128) -> ReLU (with them any other vector observation the task was asked for,
+  such as ``wire_slack`` or ``drive_force``).
+
+`LayerNormSACPolicy` is SB3's SAC policy with layer normalisation after every hidden
+layer of the critics (as in RLPD, Ball et al. 2023): it keeps Q-values from running away
+when the batch mixes an expert's transitions with the agent's own.
 
 A single-modality baseline is the same network over the subset of keys its
 observation preset enables (see `cathsim_dmc.observables.OBSERVATION_PRESETS`).
@@ -15,8 +20,11 @@ observation preset enables (see `cathsim_dmc.observables.OBSERVATION_PRESETS`).
 from __future__ import annotations
 
 import gymnasium
+import numpy as np
 import torch
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.sac.policies import MultiInputPolicy
 from torch import nn
 
 IMAGE_KEYS = ("pixels", "guidewire_mask")
@@ -48,10 +56,11 @@ class ENNExtractor(BaseFeaturesExtractor):
     def __init__(self, observation_space: gymnasium.spaces.Dict):
         keys = set(observation_space.spaces)
         image_keys = [k for k in IMAGE_KEYS if k in keys]
-        joint_keys = [k for k in JOINT_KEYS if k in keys]
-        unknown = keys - set(image_keys) - set(joint_keys)
-        if unknown:
-            raise ValueError(f"ENNExtractor does not know observation keys {sorted(unknown)}")
+        # Joint state first, then any other vector observation, in a fixed order.
+        joint_keys = [k for k in JOINT_KEYS if k in keys] + sorted(keys - set(IMAGE_KEYS) - set(JOINT_KEYS))
+        flat = [k for k in joint_keys if len(observation_space[k].shape) != 1]
+        if flat:
+            raise ValueError(f"ENNExtractor takes images {IMAGE_KEYS} and vectors; {flat} are neither")
         joint_size = sum(int(observation_space[k].shape[0]) for k in joint_keys)
         features = IMAGE_FEATURES * len(image_keys) + (JOINT_FEATURES if joint_keys else 0)
         super().__init__(observation_space, features_dim=features)
@@ -65,3 +74,25 @@ class ENNExtractor(BaseFeaturesExtractor):
         if self.joints is not None:
             codes.append(self.joints(torch.cat([observations[k] for k in self.joint_keys], dim=1)))
         return torch.cat(codes, dim=1)
+
+
+
+class LayerNormCritic(ContinuousCritic):
+    """SB3's ContinuousCritic with LayerNorm after each hidden Linear layer."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        action_dim = int(np.prod(kwargs["action_space"].shape))
+        for idx in range(len(self.q_networks)):
+            q_net = nn.Sequential(*create_mlp(kwargs["features_dim"] + action_dim, 1, kwargs["net_arch"],
+                                              kwargs.get("activation_fn", nn.ReLU), post_linear_modules=[nn.LayerNorm]))
+            self.add_module(f"qf{idx}", q_net)
+            self.q_networks[idx] = q_net
+
+
+class LayerNormSACPolicy(MultiInputPolicy):
+    """SAC's multi-input policy whose critics normalise every hidden layer."""
+
+    def make_critic(self, features_extractor=None):
+        critic_kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
+        return LayerNormCritic(**critic_kwargs).to(self.device)

@@ -6,6 +6,7 @@ Used by ``cathsim-train`` (cathsim_dmc/cli/train.py); importable for scripts.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import time
 from dataclasses import dataclass
@@ -17,6 +18,10 @@ CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.zip"
 REPLAY_BUFFER = "replay_buffer.pkl"
 FINAL_MODEL = "final_model.zip"
+log = logging.getLogger("cathsim-train")
+BEST_MODEL = "best.zip"  # the checkpoint with the best periodic deterministic evaluation
+BEST_RECORD = "best.json"
+EVALUATIONS = "evaluations.jsonl"  # one line per periodic evaluation: step, success rate, return, wall time
 
 
 # -- environments ------------------------------------------------------------------
@@ -33,6 +38,26 @@ def make_env_fn(task: str, aorta: str, obs: str, seed: int, task_kwargs: dict):
         return Monitor(env, info_keywords=("success",))
 
     return build
+
+
+def normalize_observations(env, resume_from: Path | None = None):
+    """Wrap `env` in SB3's VecNormalize for the vector observations (images stay uint8).
+
+    Running mean and variance of every non-image key, clipped at 10 standard deviations;
+    rewards are left alone. Resuming continues the statistics saved beside `resume_from`.
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from cathsim_dmc.gym import IMAGE_KEYS
+    from cathsim_dmc.policies import load_normalizer, normalizer_path
+
+    keys = [k for k in env.observation_space.spaces if k not in IMAGE_KEYS]
+    if resume_from is not None and normalizer_path(resume_from).is_file():
+        normalizer = load_normalizer(normalizer_path(resume_from))
+        normalizer.set_venv(env)
+        normalizer.training = True
+        return normalizer
+    return VecNormalize(env, norm_obs=True, norm_reward=False, norm_obs_keys=keys, clip_obs=10.0)
 
 
 def make_vec_env(task, aorta, obs, seed, n_envs, task_kwargs):
@@ -106,18 +131,26 @@ def grow_replay_buffer(model, capacity: int) -> None:
 
 
 # -- model -------------------------------------------------------------------------
-def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None):
+def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None, demos: dict | None = None):
+    """SAC on `env` from an `algo` config; with `demos` (its `share`, `capacity`) the replay
+    buffer mixes demonstrations into every batch (`cathsim_dmc.rl.demos.DemoReplayBuffer`)."""
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.rl.features import ENNExtractor
+    from cathsim_dmc.rl.demos import DemoReplayBuffer
+    from cathsim_dmc.rl.features import ENNExtractor, LayerNormSACPolicy
 
     policy_kwargs = dict(
         features_extractor_class=ENNExtractor,
         net_arch=list(algo["net_arch"]),
         share_features_extractor=bool(algo["share_features_extractor"]),
     )
+    buffer = {}
+    if demos:
+        buffer = dict(replay_buffer_class=DemoReplayBuffer,
+                      replay_buffer_kwargs=dict(demo_share=float(demos["share"]), demo_capacity=int(demos["capacity"])))
+    policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
     return SAC(
-        "MultiInputPolicy", env,
+        policy, env, **buffer,
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
@@ -211,14 +244,17 @@ def _callbacks():
     class PeriodicEval(BaseCallback):
         """Every `every` steps: deterministic episodes on a separate env, logged under eval/."""
 
-        def __init__(self, make_env, every: int, episodes: int, seed: int):
+        def __init__(self, make_env, every: int, episodes: int, seed: int, run_dir: Path | None = None):
             super().__init__()
             self.make_env, self.every, self.episodes, self.seed = make_env, int(every), int(episodes), seed
+            self.run_dir = None if run_dir is None else Path(run_dir)
             self.env = None
             self._last = 0
 
         def _on_training_start(self):
             self._last = self.num_timesteps
+            # Wall time counts from the run's start (a resumed run continues its clock).
+            self._start_wall = time.time() - _elapsed_before(self.run_dir)
 
         def _on_step(self) -> bool:
             if self.every <= 0 or self.num_timesteps - self._last < self.every:
@@ -230,7 +266,10 @@ def _callbacks():
             for episode in range(self.episodes):
                 obs, info = self.env.reset(seed=self.seed + episode)
                 total, done = 0.0, False
+                normalizer = self.model.get_vec_normalize_env()
                 while not done:
+                    if normalizer is not None:
+                        obs = normalizer.normalize_obs(obs)
                     action, _ = self.model.predict(obs, deterministic=True)
                     obs, reward, terminated, truncated, info = self.env.step(action)
                     total += reward
@@ -241,6 +280,14 @@ def _callbacks():
             self.logger.record("eval/mean_return", float(np.mean(returns)))
             self.logger.record("eval/success_rate", float(np.mean(successes)))
             self.logger.record("eval/mean_episode_length", float(np.mean(lengths)))
+            if self.run_dir is not None:
+                keep_if_best(self.model, self.run_dir, self.num_timesteps, float(np.mean(successes)),
+                             float(np.mean(returns)))
+                record = {"step": int(self.num_timesteps), "success_rate": float(np.mean(successes)),
+                          "mean_return": float(np.mean(returns)), "mean_episode_length": float(np.mean(lengths)),
+                          "episodes": self.episodes, "wall_s": round(time.time() - self._start_wall, 1)}
+                with open(self.run_dir / EVALUATIONS, "a") as f:
+                    f.write(json.dumps(record) + "\n")
             return True
 
         def _on_training_end(self):
@@ -258,17 +305,59 @@ def _atomic(path: Path, write) -> None:
     os.replace(written, path)
 
 
+def save_model(model, path: Path) -> None:
+    """`model` to `path` (atomic), and its observation normaliser beside it if it has one."""
+    from cathsim_dmc.policies import normalizer_path
+
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:
+        _atomic(normalizer_path(path), lambda tmp: normalizer.save(tmp))
+    _atomic(path, lambda tmp: model.save(tmp))
+
+
 def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
     """step_<n>.zip and last.zip (same content), replay_buffer.pkl optional; atomic."""
+    from cathsim_dmc.policies import normalizer_path
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     last = folder / LAST_CHECKPOINT
-    _atomic(last, lambda tmp: model.save(tmp))
+    save_model(model, last)
     step_file = folder / f"step_{model.num_timesteps}.zip"
+    if normalizer_path(last).is_file():
+        _atomic(normalizer_path(step_file), lambda tmp: tmp.write_bytes(normalizer_path(last).read_bytes()))
     _atomic(step_file, lambda tmp: tmp.write_bytes(last.read_bytes()))
     if replay_buffer:
         _atomic(folder / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
     return last
+
+
+def _elapsed_before(run_dir) -> float:
+    """Wall seconds of the run's earlier sessions (from its last periodic evaluation)."""
+    if run_dir is None or not (Path(run_dir) / EVALUATIONS).is_file():
+        return 0.0
+    lines = (Path(run_dir) / EVALUATIONS).read_text().splitlines()
+    return float(json.loads(lines[-1])["wall_s"]) if lines else 0.0
+
+
+def keep_if_best(model, run_dir: Path, step: int, success_rate: float, mean_return: float) -> bool:
+    """Save `model` as best.zip if its evaluation beats the best so far (success rate first,
+    then return; a tie keeps the earlier one). best.json records the scores and the step."""
+    record_file = Path(run_dir) / CHECKPOINT_DIR / BEST_RECORD
+    best = json.loads(record_file.read_text()) if record_file.is_file() else None
+    if best is not None and (success_rate, mean_return) <= (best["success_rate"], best["mean_return"]):
+        return False
+    record_file.parent.mkdir(parents=True, exist_ok=True)
+    save_model(model, record_file.parent / BEST_MODEL)
+    record = {"step": int(step), "success_rate": success_rate, "mean_return": mean_return}
+    _atomic(record_file, lambda tmp: tmp.write_text(json.dumps(record)))
+    return True
+
+
+def best_record(run_dir: Path) -> dict | None:
+    """best.json of a run (None if no periodic evaluation saved a best model)."""
+    record_file = Path(run_dir) / CHECKPOINT_DIR / BEST_RECORD
+    return json.loads(record_file.read_text()) if record_file.is_file() else None
 
 
 @dataclass
@@ -279,17 +368,27 @@ class TrainResult:
     seconds: float
 
 
-def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_options: dict | None = None) -> None:
-    """policy.json: what evaluating the checkpoint needs (observation preset and image options)."""
+def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_options: dict | None = None,
+                      env_options: dict | None = None, normalize_observations: bool = False) -> None:
+    """policy.json: what evaluating the checkpoint needs (observation preset, image options,
+    and the environment options it was trained with that change what it sees or drives)."""
     from cathsim_dmc.policies import POLICY_FILE
 
-    info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta}
+    info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta,
+            "env_options": dict(env_options or {}), "normalize_observations": bool(normalize_observations)}
     (Path(run_dir) / POLICY_FILE).write_text(json.dumps(info))
 
 
 def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
-          resume: bool = False, make_eval_env=None, image_options: dict | None = None) -> TrainResult:
-    """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"]."""
+          resume: bool = False, make_eval_env=None, image_options: dict | None = None,
+          demos: dict | None = None, make_demo_env=None, env_options: dict | None = None) -> TrainResult:
+    """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"].
+
+    With `demos` (`episodes` > 0), `make_demo_env()` builds an environment like the
+    training one in which the scripted expert records that many episodes; they are mixed
+    into every batch, and the actor and critic may be pre-trained on them first
+    (`pretrain_actor_steps`, `critic_warmup_steps`).
+    """
     import torch
     from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import CallbackList
@@ -304,6 +403,8 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     capacity = max(1, min(int(algo["buffer_size"]), total))
     algo = dict(algo, buffer_size=capacity)
     check_replay_memory(env.observation_space, env.action_space.shape[0], capacity)
+    if trainer.get("normalize_observations"):
+        env = normalize_observations(env, ckpt_dir / LAST_CHECKPOINT if resume else None)
     tb_dir = str(run_dir / "tensorboard")
     ckpt_dir = run_dir / CHECKPOINT_DIR
     if resume:
@@ -315,13 +416,19 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
             model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
         grow_replay_buffer(model, capacity)
     else:
-        model = build_sac(env, algo, seed, trainer["device"], tb_dir)
-        write_policy_file(run_dir, obs, task, aorta, image_options)
+        model = build_sac(env, algo, seed, trainer["device"], tb_dir, demos if _use_demos(demos) else None)
+        write_policy_file(run_dir, obs, task, aorta, image_options, env_options,
+                          bool(trainer.get("normalize_observations")))
+    if _use_demos(demos):
+        load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume)
     EpisodeStats, Checkpoints, Progress, PeriodicEval = _callbacks()
     checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
     callbacks = [EpisodeStats(), checkpoints]
     if trainer.get("eval_every", 0) > 0 and make_eval_env is not None:
-        callbacks.append(PeriodicEval(make_eval_env, trainer["eval_every"], trainer["eval_episodes"], 10_000 + seed))
+        # Selection episodes are seeded apart from the final report's (10_000 + seed), so
+        # the report is not scored on the episodes the best checkpoint was chosen on.
+        callbacks.append(PeriodicEval(make_eval_env, trainer["eval_every"], trainer["eval_episodes"], 20_000 + seed,
+                                      run_dir=run_dir))
     if trainer.get("progress_bar", True):
         callbacks.append(Progress(total))
     start_steps, t0 = model.num_timesteps, time.perf_counter()
@@ -331,5 +438,45 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
                     tb_log_name="sac", reset_num_timesteps=not resume)
     seconds = time.perf_counter() - t0
     save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
-    _atomic(run_dir / FINAL_MODEL, lambda tmp: model.save(tmp))
+    save_model(model, run_dir / FINAL_MODEL)
     return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
+
+
+def _use_demos(demos: dict | None) -> bool:
+    return bool(demos) and int(demos.get("episodes", 0)) > 0
+
+
+def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True) -> None:
+    """Record the expert's episodes into the model's DemoReplayBuffer, then (on a new run)
+    pre-train the actor and warm up the critic on them. Logged under demos/."""
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions, pretrain_actor, \
+        warm_up_critic
+
+    buffer = model.replay_buffer
+    if not isinstance(buffer, DemoReplayBuffer):
+        raise ValueError("this run was started without demonstrations; resume it without demos.episodes")
+    if buffer.demos.size() == 0:
+        if make_demo_env is None:
+            raise ValueError("demos.episodes > 0 needs an environment to record the expert in")
+        env = make_demo_env()
+        try:
+            # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
+            t0 = time.perf_counter()
+            transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed)
+        finally:
+            env.close()
+        add_transitions(buffer, transitions)
+        normalizer = model.get_vec_normalize_env()
+        if normalizer is not None:  # start the statistics from the expert's states, not from zero
+            for key in normalizer.norm_obs_keys:
+                normalizer.obs_rms[key].update(transitions.observations[key])
+        log.info("demonstrations: %d expert episodes (%d reached the target), %d transitions, %.0f s",
+                 transitions.episodes, transitions.successes, len(transitions), time.perf_counter() - t0)
+    if pretrain:
+        if int(demos.get("pretrain_actor_steps", 0)) > 0:
+            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]))
+            log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
+                     int(demos["pretrain_actor_steps"]), loss)
+        if int(demos.get("critic_warmup_steps", 0)) > 0:
+            loss = warm_up_critic(model, int(demos["critic_warmup_steps"]))
+            log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)

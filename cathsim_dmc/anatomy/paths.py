@@ -1,0 +1,142 @@
+"""Distances along the vessel: where a point lies on the centerline tree, and how far it is
+from a target when travelling inside the lumen.
+
+An asset's centerlines all start at the entry and share the trunk (descending aorta,
+arch) before each turns into its branch. A tip in a wrong branch must first come back to
+the junction, so the distance that matters for navigation is measured along the tree:
+
+    geodesic = (way back to the junction) + (junction to target along the target's line)
+
+plus how far the point lies outside every centerline's tube (the ascending aorta, which
+no entry-to-site centerline covers). Pure numpy: no simulator needed.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+
+class CenterlinePath:
+    """One polyline with its lumen radius: arc length, closest-point queries, interpolation.
+
+    The line is continued straight for `extension_m` past its last point, so that a tip
+    which overshoots the end gets an arc length beyond `length_m` instead of being clamped.
+    """
+
+    def __init__(self, points_m, radius_m, extension_m: float = 0.03):
+        points = np.asarray(points_m, dtype=float)
+        radius = np.broadcast_to(np.asarray(radius_m, dtype=float), (len(points),))
+        end_direction = points[-1] - points[-2]
+        end_direction /= np.linalg.norm(end_direction)
+        self.points = np.vstack([points, points[-1] + extension_m * end_direction])
+        self.radius = np.append(radius, radius[-1])
+        self._seg = np.diff(self.points, axis=0)
+        self._seg_len = np.linalg.norm(self._seg, axis=1)
+        self.arclength = np.concatenate([[0.0], np.cumsum(self._seg_len)])
+        self.length_m = float(self.arclength[-2])  # arc length of the last given point (the site)
+
+    def locate(self, point_m, s_min: float = -np.inf, s_max: float = np.inf) -> tuple[float, float]:
+        """(arc length, depth outside the tube) of `point_m`, over arc lengths in [s_min, s_max].
+
+        The tube is the centerline +- the lumen radius. The arc length chosen is where the
+        point lies deepest inside it, so near an ostium a tip in the parent vessel is placed
+        in the parent, not in the closer but narrower start of the branch. A negative depth
+        means inside the tube.
+        """
+        p = np.asarray(point_m, dtype=float)
+        a = self.points[:-1]
+        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / np.maximum(self._seg_len**2, 1e-18), 0, 1)
+        s = self.arclength[:-1] + t * self._seg_len
+        depth = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1) - np.interp(s, self.arclength, self.radius)
+        depth = np.where((s >= s_min) & (s <= s_max), depth, np.inf)
+        i = int(np.argmin(depth))
+        return float(s[i]), float(depth[i])
+
+    def at(self, s_m: float) -> np.ndarray:
+        s = float(np.clip(s_m, 0.0, self.arclength[-1]))
+        return np.array([np.interp(s, self.arclength, self.points[:, k]) for k in range(3)])
+
+    def radius_at(self, s_m: float) -> float:
+        return float(np.interp(s_m, self.arclength, self.radius))
+
+    def distance_to_polyline_m(self, other: "CenterlinePath") -> np.ndarray:
+        """Distance of each of this line's given points to `other`'s polyline (extension excluded)."""
+        a, seg, seg_len = other.points[:-2], other._seg[:-1], other._seg_len[:-1]
+        p = self.points[:-1, None, :]
+        t = np.clip(np.einsum("nij,ij->ni", p - a, seg) / np.maximum(seg_len**2, 1e-18), 0, 1)
+        return np.linalg.norm(a + t[..., None] * seg - p, axis=2).min(axis=1)
+
+
+class CenterlineTree:
+    """The asset's centerlines as a tree rooted at the entry, with distances along it.
+
+    Args:
+      centerlines: name -> (points (n, 3) in metres from the entry to the site, lumen
+        radius in metres at each point).
+      junction_tolerance_m: two lines are one vessel while they stay this close; the
+        junction is where one leaves the other.
+      tie_tolerance_m: on a shared stretch every line is equally deep; a line within this
+        of the deepest counts as a tie and the target's own line wins.
+    """
+
+    def __init__(self, centerlines: Mapping[str, tuple], junction_tolerance_m: float = 1e-3,
+                 tie_tolerance_m: float = 0.5e-3):
+        self.lines = {name: CenterlinePath(points, radius) for name, (points, radius) in centerlines.items()}
+        self._tie = float(tie_tolerance_m)
+        # junction[(a, b)]: arc length along a where a leaves b.
+        self._junction = {}
+        for a, line_a in self.lines.items():
+            for b, line_b in self.lines.items():
+                if a == b:
+                    continue
+                apart = np.flatnonzero(line_a.distance_to_polyline_m(line_b) > junction_tolerance_m)
+                index = apart[0] if len(apart) else len(line_a.points) - 2
+                self._junction[(a, b)] = float(line_a.arclength[max(index - 1, 0)])
+
+    @classmethod
+    def from_asset(cls, asset, **kwargs) -> "CenterlineTree":
+        """The tree of an `AortaAsset` (its `centerlines`: name -> (points, radius_m))."""
+        return cls({name: (line.points, line.radius) for name, line in asset.centerlines.items()}, **kwargs)
+
+    def junction_arclength_m(self, line: str, target: str) -> float:
+        """Arc length along `line` at which it leaves `target`'s line (the ostium it turns into)."""
+        return self._junction[(line, target)]
+
+    def locate(self, point_m, prefer: str | None = None) -> tuple[str, float, float]:
+        """(line name, arc length, depth outside its tube) where `point_m` lies deepest.
+
+        On a stretch that several lines share they tie; `prefer` (if within the tie
+        tolerance) wins, otherwise the first deepest line.
+        """
+        found = {name: line.locate(point_m) for name, line in self.lines.items()}
+        best = min(found, key=lambda name: found[name][1])
+        if prefer is not None and found[prefer][1] <= found[best][1] + self._tie:
+            best = prefer
+        s, depth = found[best]
+        return best, s, depth
+
+    def geodesic_distance_m(self, point_m, target: str) -> float:
+        """Distance from `point_m` to `target`'s site travelling inside the vessel, in metres.
+
+        Along the target's own line it is the remaining arc length (the overshoot past the
+        site counts too). In another line past its junction with the target's, it is the way
+        back to the junction plus the way on from there. A point outside every tube adds
+        its depth outside (the ascending aorta has no centerline of its own).
+        """
+        name, s, depth = self.locate(point_m, prefer=target)
+        target_line = self.lines[target]
+        if name == target:
+            along = abs(target_line.length_m - s)
+        else:
+            junction = self.junction_arclength_m(name, target)
+            if s <= junction:
+                along = target_line.length_m - s
+            else:
+                along = (s - junction) + (target_line.length_m - self.junction_arclength_m(target, name))
+        return float(along + max(depth, 0.0))
+
+    def progress_m(self, point_m) -> float:
+        """Arc length from the entry of the point's deepest line (how far along the vessel it is)."""
+        return self.locate(point_m)[1]

@@ -1,0 +1,99 @@
+"""Learning machinery: demonstrations mixed into batches, best-checkpoint selection, the
+observation normaliser's round trip. Learning outcomes are measured in docs/learning.md,
+not asserted here."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cathsim_dmc.gym import CathSimEnv
+
+
+@pytest.fixture(scope="module")
+def env():
+    environment = CathSimEnv("bca", "type1", obs="internal", reward="geodesic", progress_weight=1.0)
+    yield environment
+    environment.close()
+
+
+def _add(buffer_add, env, n, reward):
+    obs = {k: np.zeros((1,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
+    for _ in range(n):
+        buffer_add(obs, obs, np.zeros((1, 2), np.float32), np.array([reward], np.float32), np.array([False]),
+                   [{"TimeLimit.truncated": False}])
+
+
+def test_every_batch_takes_the_demo_share_from_the_demonstrations(env):
+    from cathsim_dmc.rl.demos import DemoReplayBuffer
+
+    buffer = DemoReplayBuffer(1000, env.observation_space, env.action_space, device="cpu", demo_share=0.25)
+    _add(buffer.demos.add, env, 50, reward=1.0)  # demonstrations carry reward 1
+    assert buffer.sample(64).rewards.sum() == 64  # no own experience yet: all from the demonstrations
+    _add(buffer.add, env, 500, reward=0.0)  # the agent's own carry 0
+    for _ in range(5):
+        batch = buffer.sample(64)
+        assert batch.rewards.shape == (64, 1)
+        assert float(batch.rewards.sum()) == 16  # exactly a quarter, every batch
+        assert set(batch.observations) == set(env.observation_space.spaces)
+
+
+def test_expert_demonstrations_are_recorded_with_the_training_reward(env):
+    from cathsim_dmc.rl.demos import expert_transitions
+
+    demos = expert_transitions(env, episodes=1, seed=0)
+    assert demos.successes == 1 and demos.terminated[-1] and not demos.terminated[:-1].any()
+    assert demos.rewards[-1] == 10.0
+    # Progress shaping: the expert's insertion up the descending aorta is paid for.
+    assert demos.rewards[:10].mean() > 0.5
+    assert demos.observations["joint_pos"].shape == (len(demos), env.observation_space["joint_pos"].shape[0])
+    np.testing.assert_array_equal(demos.observations["joint_pos"][1:], demos.next_observations["joint_pos"][:-1])
+
+
+def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
+    from stable_baselines3 import SAC
+
+    from cathsim_dmc.rl.train import best_record, keep_if_best
+
+    model = SAC("MultiInputPolicy", env, buffer_size=100, learning_starts=10, device="cpu")
+    sequence = [(1000, 0.2, -5.0, True), (2000, 0.1, 3.0, False), (3000, 0.2, -6.0, False),
+                (4000, 0.2, -4.0, True), (5000, 0.6, -9.0, True), (6000, 0.6, -9.0, False)]
+    for step, success, ret, expected in sequence:
+        assert keep_if_best(model, tmp_path, step, success, ret) is expected
+    assert best_record(tmp_path) == {"step": 5000, "success_rate": 0.6, "mean_return": -9.0}
+    assert (tmp_path / "checkpoints" / "best.zip").is_file()
+
+
+def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
+    from cathsim_dmc.policies import load_checkpoint_policy
+
+    run = tmp_path / "run"
+    args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
+            "algo.buffer_size=2000", "trainer.total_timesteps=40", "trainer.checkpoint_every=20",
+            "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
+            "trainer.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
+            "demos.critic_warmup_steps=5", f"hydra.run.dir={run}"]
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    checkpoints = run / "checkpoints"
+    for name in ("last", "step_20", "step_40", "best"):
+        assert (checkpoints / f"{name}.vecnormalize.pkl").is_file(), name
+    assert json.loads((run / "policy.json").read_text())["normalize_observations"] is True
+    assert len((run / "evaluations.jsonl").read_text().splitlines()) == 2
+
+    policy = load_checkpoint_policy(checkpoints / "last.zip")
+    stats = policy.normalizer.obs_rms["joint_pos"]
+    # Statistics of real observations (the expert's, then the agent's): not the initial zero/one.
+    assert stats.count > 20 and np.abs(stats.mean).max() > 0.01
+    assert policy.normalizer.training is False
+    env = CathSimEnv("bca", "type1", obs="internal")
+    obs, _ = env.reset(seed=0)
+    normalized = policy.normalizer.normalize_obs(obs)
+    expected = np.clip((obs["joint_pos"] - stats.mean) / np.sqrt(stats.var + policy.normalizer.epsilon), -10, 10)
+    np.testing.assert_allclose(normalized["joint_pos"], expected, rtol=1e-5, atol=1e-6)
+    action = policy(obs, env)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1)
+    env.close()
