@@ -265,12 +265,17 @@ class Navigate(composer.Task):
     def get_reward(self, physics):
         if self._diverged:
             return 0.0
-        if self._success:
+        return self.reward_for(self._previous_reward_distance_m, self._reward_distance_m, self._success)
+
+    def reward_for(self, previous_distance_m: float, distance_m: float, success: bool) -> float:
+        """The reward of a step that took the tip from `previous_distance_m` to `distance_m`
+        (as `reward_distance_m` measures them) and did or did not reach the target."""
+        if success:
             return self._success_reward
-        reward = -self._reward_distance_m if self._dense else 0.0
+        reward = -distance_m if self._dense else 0.0
         if self._progress_weight:
             step_m = self._robot.max_insertion_speed_m_s * self.control_timestep
-            reward += self._progress_weight * (self._previous_reward_distance_m - self._reward_distance_m) / step_m
+            reward += self._progress_weight * (previous_distance_m - distance_m) / step_m
         return reward
 
     def should_terminate_episode(self, physics):
@@ -292,7 +297,11 @@ class Navigate(composer.Task):
         return self._paths.geodesic_distance_m(self.tip_position_m(physics), self._target_name)
 
     def reward_distance_m(self, physics) -> float:
-        """The distance the dense reward penalises, in metres.
+        """The distance the dense reward penalises for the current tip (`distance_for_reward_m`)."""
+        return self.distance_for_reward_m(self.tip_position_m(physics))
+
+    def distance_for_reward_m(self, tip_position_m) -> float:
+        """The distance the dense reward penalises for a tip at `tip_position_m`, in metres.
 
         "euclidean": the straight line from tip to target (the paper's). "geodesic": the
         larger of the distance along the vessel and the straight line. Along the vessel, a
@@ -300,10 +309,11 @@ class Navigate(composer.Task):
         straight line ranks it closer); the straight line still counts near the target,
         where a tip riding the branch wall is level with the target but off its axis.
         """
-        euclidean = self.target_distance_m(physics)
+        tip = np.asarray(tip_position_m, dtype=float)
+        euclidean = float(np.linalg.norm(tip - self.target_position_m))
         if self._reward_kind == "euclidean":
             return euclidean
-        return max(self.path_distance_m(physics), euclidean)
+        return max(self._paths.geodesic_distance_m(tip, self._target_name), euclidean)
 
     def slack_m(self, physics) -> float:
         """Carriage advance minus tip advance along the vessel since the start, metres.

@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 
 
@@ -176,3 +178,132 @@ def warm_up_critic(model, steps: int, batch_size: int | None = None) -> float:
         loss_value = float(loss.item())
     critic.set_training_mode(False)
     return loss_value
+
+
+def dataset_transitions(paths, task, observation_space, episodes: int | None = None) -> Transitions:
+    """Demonstrations from `cathsim-collect` data (folders or trajectory files), rewarded
+    by `task` (a `Navigate` built like the training one) from the recorded tip positions,
+    so a dataset collected under any reward serves any training reward.
+
+    `observation_space` (the training env's) names the observation keys to read; the
+    dataset must hold them (cathsim-collect records every modality) at the same sizes.
+    """
+    from cathsim_dmc.rl.data import load_arrays
+
+    keys = list(observation_space.spaces)
+    obs_keys = [f"obs_{k}" for k in keys]
+    row_keys = ["step", "tip_position_m", "success", "terminated", "truncated", "action"]
+    after = load_arrays(paths, obs_keys + row_keys)
+    before = load_arrays(paths, obs_keys, before_action=True)
+    for key in keys:
+        want, have = observation_space[key].shape, after[f"obs_{key}"].shape[1:]
+        if tuple(want) != tuple(have):
+            raise ValueError(f"the dataset's {key} has shape {tuple(have)} but the training environment's is "
+                             f"{tuple(want)}; collect the demonstrations again with this version")
+    episode = after["episode"]
+    keep = np.ones(len(episode), dtype=bool)
+    if episodes is not None:  # the first `episodes` episodes
+        keep = np.isin(episode, np.unique(episode)[:int(episodes)])
+    tip = after["tip_position_m"].astype(float)
+    distance = np.array([task.distance_for_reward_m(p) for p in tip])
+    # The distance before each step: the previous row's, or at the episode's start.
+    previous = np.empty_like(distance)
+    previous[1:] = distance[:-1]
+    first = after["step"] == 1
+    start_tips = _episode_start_tips(paths)
+    previous[first] = [task.distance_for_reward_m(p) for p in start_tips[episode[first]]]
+    rewards = np.array([task.reward_for(p, d, bool(s)) for p, d, s in zip(previous, distance, after["success"])],
+                       dtype=np.float32)
+    take = lambda arrays: {k: arrays[f"obs_{k}"][keep] for k in keys}  # noqa: E731
+    chosen = np.unique(episode[keep])
+    return Transitions(take(before), take(after), after["action"][keep].astype(np.float32), rewards[keep],
+                       after["terminated"][keep].astype(bool), after["truncated"][keep].astype(bool),
+                       len(chosen), int(after["terminated"][keep].sum()))
+
+
+def _episode_start_tips(paths) -> np.ndarray:
+    """start_tip_position_m of every episode, in the global episode order of load_arrays."""
+    from cathsim_dmc.rl.data import expand_paths, read_keys
+
+    return np.concatenate([read_keys(p, ("start_tip_position_m",))["start_tip_position_m"]
+                           for p in expand_paths(paths)]).astype(float)
+
+
+class SACfD(SAC):
+    """SAC whose actor is also pulled towards the expert's actions on demonstration states.
+
+    The actor's loss gains `bc_weight` x mean|Q| x the squared error between its
+    deterministic action and the expert's, on the demonstration part of the batch, counted only where
+    the critic rates the expert's action above the actor's (the Q-filter of Nair et al.,
+    2018): the agent imitates until it has found something the critic values more.
+    With `bc_weight` 0 this is plain SAC.
+    """
+
+    def __init__(self, *args, bc_weight: float = 0.0, **kwargs):
+        self.bc_weight = float(bc_weight)
+        super().__init__(*args, **kwargs)
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        buffer = self.replay_buffer
+        n_demo = buffer.demo_batch_size(batch_size) if isinstance(buffer, DemoReplayBuffer) else 0
+        if self.bc_weight <= 0 or n_demo == 0:
+            return super().train(gradient_steps, batch_size)
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers.append(self.ent_coef_optimizer)
+        self._update_learning_rate(optimizers)
+        stats = {k: [] for k in ("critic_loss", "actor_loss", "bc_loss", "bc_share", "ent_coef")}
+        for step in range(gradient_steps):
+            data = buffer.sample(batch_size, env=self._vec_normalize_env)
+            # The batch is online first, demonstrations last (DemoReplayBuffer.sample).
+            demo = slice(batch_size - n_demo, batch_size)
+            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+            if self.ent_coef_optimizer is not None:
+                ent_coef = torch.exp(self.log_ent_coef.detach())
+                ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.ent_coef_optimizer.zero_grad()
+                ent_loss.backward()
+                self.ent_coef_optimizer.step()
+            else:
+                ent_coef = self.ent_coef_tensor
+            with torch.no_grad():
+                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+                next_q = torch.cat(self.critic_target(data.next_observations, next_actions), dim=1)
+                next_q = next_q.min(dim=1, keepdim=True)[0] - ent_coef * next_log_prob.reshape(-1, 1)
+                discounts = data.discounts if data.discounts is not None else self.gamma
+                target_q = data.rewards + (1 - data.dones) * discounts * next_q
+            critic_loss = 0.5 * sum(torch.nn.functional.mse_loss(q, target_q)
+                                    for q in self.critic(data.observations, data.actions))
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            q_pi = torch.cat(self.critic(data.observations, actions_pi), dim=1).min(dim=1, keepdim=True)[0]
+            actor_loss = (ent_coef * log_prob - q_pi).mean()
+            demo_obs = {k: v[demo] for k, v in data.observations.items()}
+            mean, _, _ = self.actor.get_action_dist_params(demo_obs)
+            deterministic = torch.tanh(mean)
+            expert = data.actions[demo]
+            with torch.no_grad():
+                q_expert = torch.cat(self.critic(demo_obs, expert), dim=1).min(dim=1)[0]
+                q_actor = torch.cat(self.critic(demo_obs, deterministic), dim=1).min(dim=1)[0]
+                better = (q_expert > q_actor).float()
+            bc_loss = (better * ((deterministic - expert) ** 2).sum(dim=1)).mean()
+            # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
+            # same whatever the reward's scale.
+            loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
+            self.actor.optimizer.zero_grad()
+            loss.backward()
+            self.actor.optimizer.step()
+            if step % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+            for key, value in (("critic_loss", critic_loss), ("actor_loss", actor_loss), ("bc_loss", bc_loss),
+                               ("bc_share", better.mean()), ("ent_coef", ent_coef)):
+                stats[key].append(float(value.item()))
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in stats.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))

@@ -134,9 +134,7 @@ def grow_replay_buffer(model, capacity: int) -> None:
 def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None, demos: dict | None = None):
     """SAC on `env` from an `algo` config; with `demos` (its `share`, `capacity`) the replay
     buffer mixes demonstrations into every batch (`cathsim_dmc.rl.demos.DemoReplayBuffer`)."""
-    from stable_baselines3 import SAC
-
-    from cathsim_dmc.rl.demos import DemoReplayBuffer
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, SACfD
     from cathsim_dmc.rl.features import ENNExtractor, LayerNormSACPolicy
 
     policy_kwargs = dict(
@@ -144,13 +142,14 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
         net_arch=list(algo["net_arch"]),
         share_features_extractor=bool(algo["share_features_extractor"]),
     )
-    buffer = {}
+    with_demos = {}
     if demos:
-        buffer = dict(replay_buffer_class=DemoReplayBuffer,
-                      replay_buffer_kwargs=dict(demo_share=float(demos["share"]), demo_capacity=int(demos["capacity"])))
+        with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos.get("bc_weight", 0.0)),
+                          replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
+                                                    demo_capacity=int(demos["capacity"])))
     policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
-    return SAC(
-        policy, env, **buffer,
+    return SACfD(
+        policy, env, **with_demos,
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
@@ -390,8 +389,9 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     (`pretrain_actor_steps`, `critic_warmup_steps`).
     """
     import torch
-    from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import CallbackList
+
+    from cathsim_dmc.rl.demos import SACfD
 
     run_dir = Path(run_dir)
     if trainer.get("torch_threads"):
@@ -411,7 +411,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         last = ckpt_dir / LAST_CHECKPOINT
         if not last.is_file():
             raise FileNotFoundError(f"nothing to resume: no {CHECKPOINT_DIR}/{LAST_CHECKPOINT} in {run_dir}")
-        model = SAC.load(last, env=env, device=trainer["device"], tensorboard_log=tb_dir)
+        model = SACfD.load(last, env=env, device=trainer["device"], tensorboard_log=tb_dir)
         if (ckpt_dir / REPLAY_BUFFER).is_file():
             model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
         grow_replay_buffer(model, capacity)
@@ -449,8 +449,8 @@ def _use_demos(demos: dict | None) -> bool:
 def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True) -> None:
     """Record the expert's episodes into the model's DemoReplayBuffer, then (on a new run)
     pre-train the actor and warm up the critic on them. Logged under demos/."""
-    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions, pretrain_actor, \
-        warm_up_critic
+    from cathsim_dmc.rl.demos import (DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions,
+                                      pretrain_actor, warm_up_critic)
 
     buffer = model.replay_buffer
     if not isinstance(buffer, DemoReplayBuffer):
@@ -460,9 +460,13 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
             raise ValueError("demos.episodes > 0 needs an environment to record the expert in")
         env = make_demo_env()
         try:
-            # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
             t0 = time.perf_counter()
-            transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed)
+            if demos.get("path"):
+                transitions = dataset_transitions(demos["path"], env.task, env.observation_space,
+                                                  int(demos["episodes"]))
+            else:
+                # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
+                transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed)
         finally:
             env.close()
         add_transitions(buffer, transitions)
