@@ -2,7 +2,8 @@
 
 Observations are a Dict: images channel-first uint8 (1, H, W) as stable-baselines3
 expects, vectors float32. ``terminated`` means the target was reached; ``truncated``
-means the 300-step limit or a diverged simulation (``info["diverged"]``).
+means the 300-step limit, a diverged simulation (``info["diverged"]``) or a wire that
+left the anatomy (``info["escaped"]``).
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ from dm_control.composer.observation import observable
 
 from cathsim_dmc import model_cache
 from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
 from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView, image_noise
@@ -20,6 +21,7 @@ CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
 MAX_STEPS = 300  # the paper's episode limit
 SUCCESS_RADIUS_M = 0.004  # the paper's delta
 SUCCESS_REWARD = 10.0
+WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 
 
 @dataclass
@@ -33,6 +35,7 @@ class StepInfo:
     mean_contact_force_n: float  # total, averaged over the control step's physics steps
     success: bool
     diverged: bool
+    escaped: bool  # a wire point left the lumen and the introducer (the episode is truncated)
 
 
 class Navigate(composer.Task):
@@ -97,6 +100,15 @@ class Navigate(composer.Task):
         self._contacts = None  # cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
+        # The wire belongs in the lumen or in the introducer: the guide channel and the
+        # straight path on from its outlet to the entry. Anywhere else it has escaped.
+        tolerance_m = guidewire.radius_m + WALL_COMPLIANCE_M
+        outlet = aorta.entry_position_m - robot.initial_insertion_m * aorta.entry_direction
+        introducer = Channel(start_m=outlet - robot.channel_length_m * aorta.entry_direction,
+                             end_m=aorta.entry_position_m,
+                             radius_m=robot.channel_half_width_m * np.sqrt(2.0) + tolerance_m)
+        self._containment = Containment(lumen_field(aorta.asset), tolerance_m, [introducer])
+        self._escaped = False
 
     # -- structure -------------------------------------------------------------
     @property
@@ -169,6 +181,7 @@ class Navigate(composer.Task):
         self._step_count = 0
         self._success = False
         self._diverged = False
+        self._escaped = False
         self._contacts = None
         self._wire_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
@@ -192,9 +205,10 @@ class Navigate(composer.Task):
     def after_step(self, physics, random_state):
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
+        self._escaped = not self._diverged and not self._containment.contains(self.wire_points_m(physics)).all()
         self._mean_force_n = (self._force_sum_n / self._force_samples if self._force_samples
                               else self.contact_forces(physics).total_n)
-        if not self._diverged:
+        if not (self._diverged or self._escaped):
             self._success = self.target_distance_m(physics) <= self._delta_m
 
     def action_spec(self, physics):
@@ -209,7 +223,7 @@ class Navigate(composer.Task):
         return -self.target_distance_m(physics) if self._dense else 0.0
 
     def should_terminate_episode(self, physics):
-        return self._success or self._diverged or self._step_count >= self._max_steps
+        return self._success or self._diverged or self._escaped or self._step_count >= self._max_steps
 
     def get_discount(self, physics):
         # Success is a true terminal state; the time limit and divergence truncate.
@@ -218,6 +232,17 @@ class Navigate(composer.Task):
     # -- measurements ----------------------------------------------------------
     def tip_position_m(self, physics) -> np.ndarray:
         return physics.bind(self._guidewire.tip_site).xpos.copy()
+
+    def wire_points_m(self, physics) -> np.ndarray:
+        """(N, 3) points along the wire: segment ends, segment centres and the tip."""
+        return np.vstack([physics.bind(self._guidewire.segments).xpos, physics.bind(self._guidewire.geoms).xpos,
+                          physics.bind(self._guidewire.tip_site).xpos])
+
+    @property
+    def containment(self) -> Containment:
+        """Where the wire may be: the lumen (with the wire's radius plus `WALL_COMPLIANCE_M`
+        of tolerance) and the introducer."""
+        return self._containment
 
     def target_distance_m(self, physics) -> float:
         return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
@@ -234,6 +259,11 @@ class Navigate(composer.Task):
     @property
     def diverged(self) -> bool:
         return self._diverged
+
+    @property
+    def escaped(self) -> bool:
+        """A wire point was outside `containment` at the end of the last step."""
+        return self._escaped
 
     @property
     def success(self) -> bool:
@@ -253,6 +283,7 @@ class Navigate(composer.Task):
             mean_contact_force_n=self._mean_force_n,
             success=self._success,
             diverged=self._diverged,
+            escaped=self._escaped,
         )
 
 
@@ -296,8 +327,9 @@ class NavigationEnvironment(composer.Environment):
         self._physics.legacy_step = self._legacy_step
 
     def step(self, action):
+        """A diverged simulation or an escaped wire ends the episode as a truncation (reward 0, discount 1)."""
         timestep = super().step(action)
-        if self.task.diverged and timestep.last():
+        if (self.task.diverged or self.task.escaped) and timestep.last():
             timestep = timestep._replace(reward=0.0, discount=1.0)
         return timestep
 

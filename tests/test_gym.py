@@ -59,7 +59,7 @@ def test_info_and_truncation():
     env = gymnasium.make("cathsim_dmc/bca-type1-v0", max_steps=3)
     _, info = env.reset(seed=0)
     assert {"tip_position_m", "target_distance_m", "contact_force_n", "mean_contact_force_n", "success",
-            "diverged"} <= set(info)
+            "diverged", "escaped"} <= set(info)
     done = False
     while not done:
         _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
