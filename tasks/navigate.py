@@ -22,6 +22,7 @@ MAX_STEPS = 300  # the paper's episode limit
 SUCCESS_RADIUS_M = 0.004  # the paper's delta
 SUCCESS_REWARD = 10.0
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
+ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
 
 
 @dataclass
@@ -327,11 +328,41 @@ class NavigationEnvironment(composer.Environment):
         self._physics.legacy_step = self._legacy_step
 
     def step(self, action):
-        """A diverged simulation or an escaped wire ends the episode as a truncation (reward 0, discount 1)."""
-        timestep = super().step(action)
+        """Steps with `action` = [insertion, rotation], each in [-1, 1]; values outside are clipped.
+
+        An action of another shape or with a NaN or infinite value raises ValueError before
+        any physics runs, and the environment stays usable. A diverged simulation or an
+        escaped wire ends the episode as a truncation (reward 0, discount 1).
+        """
+        timestep = super().step(validated_action(action))
         if (self.task.diverged or self.task.escaped) and timestep.last():
             timestep = timestep._replace(reward=0.0, discount=1.0)
         return timestep
+
+
+def validated_action(action) -> np.ndarray:
+    """`action` as a float64 array of shape (2,); ValueError naming the bad value otherwise."""
+    try:
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "iufO":
+            raise TypeError
+        array = raw.astype(np.float64)
+    except (TypeError, ValueError):  # strings, ragged lists, objects that are not numbers
+        raise ValueError(f"action={_one_line(action)} is not numeric; expected {ACTION_EXPECTED}") from None
+    if array.shape != (2,):
+        raise ValueError(f"action={_one_line(action)} has shape {array.shape}; expected {ACTION_EXPECTED}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"action={_one_line(action)} is not finite; expected {ACTION_EXPECTED}")
+    return array
+
+
+def _one_line(value) -> str:
+    if isinstance(value, np.ndarray):
+        text = np.array2string(value, separator=", ", threshold=6, max_line_width=10**6)
+    else:
+        text = repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _quat_z_to(direction) -> np.ndarray:
