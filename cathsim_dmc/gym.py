@@ -2,7 +2,9 @@
 
 Observations are a Dict: images channel-first uint8 (1, H, W) as stable-baselines3
 expects, vectors float32. ``terminated`` means the target was reached; ``truncated``
-means the 300-step limit or a diverged simulation (``info["diverged"]``).
+means the 300-step limit, a diverged simulation (``info["diverged"]``) or a wire that
+left the anatomy (``info["escaped"]``). Actions are [insertion, rotation] in [-1, 1]
+(values outside are clipped); a wrong shape, NaN or inf raises ValueError.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ class CathSimEnv(gymnasium.Env):
         self.observation_space = spaces.Dict(
             {key: _space(key, spec) for key, spec in self._env.observation_spec().items()})
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self._needs_reset = True
 
     @property
     def dm_env(self):
@@ -59,12 +62,23 @@ class CathSimEnv(gymnasium.Env):
         if seed is not None:
             self._env.random_state.seed(seed)
         timestep = self._env.reset()
+        self._needs_reset = False
         return self._observation(timestep), self._info()
 
     def step(self, action):
-        timestep = self._env.step(np.asarray(action, dtype=np.float64))
+        """Steps with `action` = [insertion, rotation], each in [-1, 1]; values outside are clipped.
+
+        Raises RuntimeError before the first `reset` or after the episode ended, and
+        ValueError for an action of another shape or with a NaN or inf value (checked
+        before any physics runs; the environment stays usable).
+        """
+        if self._needs_reset:
+            raise RuntimeError("step() needs a running episode: call reset() first (at the start and after "
+                               "terminated or truncated)")
+        timestep = self._env.step(action)  # NavigationEnvironment validates the action
         terminated = bool(timestep.last() and timestep.discount == 0.0)
         truncated = bool(timestep.last() and not terminated)
+        self._needs_reset = terminated or truncated
         return self._observation(timestep), float(timestep.reward), terminated, truncated, self._info()
 
     def render(self):

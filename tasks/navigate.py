@@ -13,6 +13,7 @@ from dm_control.composer.observation import observable
 from cathsim_dmc import model_cache
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
 from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView, image_noise
@@ -26,6 +27,8 @@ SUCCESS_REWARD = 10.0
 # the right ostium; see `Navigate.reward_distance_m`).
 REWARDS = ("euclidean", "geodesic")
 EXTRA_OBSERVATIONS = ("wire_slack", "drive_force")
+WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
+ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
 
 
 @dataclass
@@ -43,6 +46,7 @@ class StepInfo:
     insertion_m: float  # carriage travel from the start of the stroke, metres
     slack_m: float  # carriage advance minus tip advance along the vessel, metres
     drive_force_n: float  # insertion drive force, newtons
+    escaped: bool  # a wire point left the lumen and the introducer (the episode is truncated)
 
 
 class Navigate(composer.Task):
@@ -135,6 +139,15 @@ class Navigate(composer.Task):
         self._mean_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
         self._start_progress_m = 0.0  # tip progress at the start minus the carriage's (set per episode)
+        # The wire belongs in the lumen or in the introducer: the guide channel and the
+        # straight path on from its outlet to the entry. Anywhere else it has escaped.
+        tolerance_m = guidewire.radius_m + WALL_COMPLIANCE_M
+        outlet = aorta.entry_position_m - robot.initial_insertion_m * aorta.entry_direction
+        introducer = Channel(start_m=outlet - robot.channel_length_m * aorta.entry_direction,
+                             end_m=aorta.entry_position_m,
+                             radius_m=robot.channel_half_width_m * np.sqrt(2.0) + tolerance_m)
+        self._containment = Containment(lumen_field(aorta.asset), tolerance_m, [introducer])
+        self._escaped = False
 
     # -- structure -------------------------------------------------------------
     @property
@@ -225,6 +238,7 @@ class Navigate(composer.Task):
         self._step_count = 0
         self._success = False
         self._diverged = False
+        self._escaped = False
         self._contacts = None
         self._wire_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
@@ -251,9 +265,10 @@ class Navigate(composer.Task):
     def after_step(self, physics, random_state):
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
+        self._escaped = not self._diverged and not self._containment.contains(self.wire_points_m(physics)).all()
         self._mean_force_n = (self._force_sum_n / self._force_samples if self._force_samples
                               else self.contact_forces(physics).total_n)
-        if not self._diverged:
+        if not (self._diverged or self._escaped):
             self._success = self.target_distance_m(physics) <= self._delta_m
             self._previous_reward_distance_m = self._reward_distance_m
             self._reward_distance_m = self.reward_distance_m(physics)
@@ -263,7 +278,7 @@ class Navigate(composer.Task):
             shape=(2,), dtype=np.float32, minimum=-1.0, maximum=1.0, name="insertion,rotation")
 
     def get_reward(self, physics):
-        if self._diverged:
+        if self._diverged or self._escaped:  # cut short: the step says nothing about the task
             return 0.0
         return self.reward_for(self._previous_reward_distance_m, self._reward_distance_m, self._success)
 
@@ -279,7 +294,7 @@ class Navigate(composer.Task):
         return reward
 
     def should_terminate_episode(self, physics):
-        return self._success or self._diverged or self._step_count >= self._max_steps
+        return self._success or self._diverged or self._escaped or self._step_count >= self._max_steps
 
     def get_discount(self, physics):
         # Success is a true terminal state; the time limit and divergence truncate.
@@ -288,6 +303,17 @@ class Navigate(composer.Task):
     # -- measurements ----------------------------------------------------------
     def tip_position_m(self, physics) -> np.ndarray:
         return physics.bind(self._guidewire.tip_site).xpos.copy()
+
+    def wire_points_m(self, physics) -> np.ndarray:
+        """(N, 3) points along the wire: segment ends, segment centres and the tip."""
+        return np.vstack([physics.bind(self._guidewire.segments).xpos, physics.bind(self._guidewire.geoms).xpos,
+                          physics.bind(self._guidewire.tip_site).xpos])
+
+    @property
+    def containment(self) -> Containment:
+        """Where the wire may be: the lumen (with the wire's radius plus `WALL_COMPLIANCE_M`
+        of tolerance) and the introducer."""
+        return self._containment
 
     def target_distance_m(self, physics) -> float:
         return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
@@ -339,6 +365,11 @@ class Navigate(composer.Task):
         return self._diverged
 
     @property
+    def escaped(self) -> bool:
+        """A wire point was outside `containment` at the end of the last step."""
+        return self._escaped
+
+    @property
     def success(self) -> bool:
         return self._success
 
@@ -360,6 +391,7 @@ class Navigate(composer.Task):
             insertion_m=self._robot.insertion_m(physics),
             slack_m=self.slack_m(physics),
             drive_force_n=self._robot.drive_force_n(physics),
+            escaped=self._escaped,
         )
 
 
@@ -403,10 +435,41 @@ class NavigationEnvironment(composer.Environment):
         self._physics.legacy_step = self._legacy_step
 
     def step(self, action):
-        timestep = super().step(action)
-        if self.task.diverged and timestep.last():
+        """Steps with `action` = [insertion, rotation], each in [-1, 1]; values outside are clipped.
+
+        An action of another shape or with a NaN or infinite value raises ValueError before
+        any physics runs, and the environment stays usable. A diverged simulation or an
+        escaped wire ends the episode as a truncation (reward 0, discount 1).
+        """
+        timestep = super().step(validated_action(action))
+        if (self.task.diverged or self.task.escaped) and timestep.last():
             timestep = timestep._replace(reward=0.0, discount=1.0)
         return timestep
+
+
+def validated_action(action) -> np.ndarray:
+    """`action` as a float64 array of shape (2,); ValueError naming the bad value otherwise."""
+    try:
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "iufO":
+            raise TypeError
+        array = raw.astype(np.float64)
+    except (TypeError, ValueError):  # strings, ragged lists, objects that are not numbers
+        raise ValueError(f"action={_one_line(action)} is not numeric; expected {ACTION_EXPECTED}") from None
+    if array.shape != (2,):
+        raise ValueError(f"action={_one_line(action)} has shape {array.shape}; expected {ACTION_EXPECTED}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"action={_one_line(action)} is not finite; expected {ACTION_EXPECTED}")
+    return array
+
+
+def _one_line(value) -> str:
+    if isinstance(value, np.ndarray):
+        text = np.array2string(value, separator=", ", threshold=6, max_line_width=10**6)
+    else:
+        text = repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _quat_z_to(direction) -> np.ndarray:

@@ -6,7 +6,7 @@ import pytest
 
 import cathsim_dmc  # noqa: F401  (registers the ids)
 from cathsim_dmc import tasks
-from cathsim_dmc.gym import env_id
+from cathsim_dmc.gym import CathSimEnv, env_id
 
 
 def test_every_pair_is_registered():
@@ -59,10 +59,41 @@ def test_info_and_truncation():
     env = gymnasium.make("cathsim_dmc/bca-type1-v0", max_steps=3)
     _, info = env.reset(seed=0)
     assert {"tip_position_m", "target_distance_m", "contact_force_n", "mean_contact_force_n", "success",
-            "diverged"} <= set(info)
+            "diverged", "escaped"} <= set(info)
     done = False
     while not done:
         _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
         done = terminated or truncated
     assert truncated and not terminated and info["step"] == 3
+    env.close()
+
+
+def test_invalid_actions_raise_before_physics_and_the_env_stays_usable():
+    env = CathSimEnv("bca", "type1", max_steps=2)
+    with pytest.raises(RuntimeError, match=r"call reset\(\)"):
+        env.step(np.zeros(2))
+    env.reset(seed=0)
+    physics = env.physics
+    for bad, match in [([np.nan, 0.0], r"action=\[nan, 0\.0\] is not finite"),
+                       (np.array([0.0, -np.inf], np.float32), r"action=\[ 0\., -inf\] is not finite"),
+                       ([1.0], r"action=\[1\.0\] has shape \(1,\); expected shape \(2,\)"),
+                       (np.zeros((1, 2)), r"has shape \(1, 2\)"),
+                       ("ab", r"action='ab' is not numeric")]:
+        time_s, qpos = physics.data.time, physics.data.qpos.copy()
+        with pytest.raises(ValueError, match=match) as error:
+            env.step(bad)
+        assert "\n" not in str(error.value) and "[insertion, rotation] in [-1, 1]" in str(error.value)
+        assert physics.data.time == time_s and np.array_equal(physics.data.qpos, qpos)
+    # Out of range is clipped, as documented.
+    _, _, terminated, truncated, _ = env.step(np.array([3.0, -2.0], np.float32))
+    robot = env.task.robot
+    np.testing.assert_allclose(physics.bind(robot.actuators).ctrl,
+                               [robot.max_insertion_speed_m_s, -robot.max_rotation_speed_rad_s])
+    assert not (terminated or truncated)
+    _, _, terminated, truncated, _ = env.step(np.zeros(2))
+    assert truncated
+    with pytest.raises(RuntimeError, match=r"call reset\(\)"):
+        env.step(np.zeros(2))
+    env.reset()
+    assert env.step(np.zeros(2))[1] < 0
     env.close()

@@ -54,6 +54,31 @@ def test_success_terminates_with_reward_and_zero_discount():
     assert timestep.last() and timestep.reward == 10.0 and timestep.discount == 0.0
 
 
+@pytest.mark.parametrize("bad, match", [
+    ([np.nan, 0.0], "is not finite"),
+    ([0.0, np.inf], "is not finite"),
+    ([1.0], r"has shape \(1,\)"),
+    ([1.0, 0.0, 0.0], r"has shape \(3,\)"),
+    ([[1.0, 0.0]], r"has shape \(1, 2\)"),
+    (None, r"action=None has shape \(\)"),
+    ("ab", "action='ab' is not numeric"),
+    ([1.0, [0.0, 1.0]], r"action=\[1.0, \[0.0, 1.0\]\] is not numeric"),
+])
+def test_invalid_actions_raise_before_physics(bad, match):
+    env = tasks.load("bca", "type1", seed=0)
+    env.reset()
+    time_s = env.physics.data.time
+    with pytest.raises(ValueError, match=match + r"; expected shape \(2,\), finite, \[insertion, rotation\]"):
+        env.step(bad)
+    assert env.physics.data.time == time_s
+    # Still usable; out-of-range values are clipped.
+    timestep = env.step([-4.0, 9.0])
+    assert timestep.mid() and env.physics.data.time > time_s
+    robot = env.task.robot
+    np.testing.assert_allclose(env.physics.bind(robot.actuators).ctrl,
+                               [-robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s])
+
+
 def test_reset_does_not_recompile():
     env = tasks.load("bca", "type1", seed=0)
     env.reset()

@@ -9,6 +9,9 @@
 
     from cathsim_dmc.anatomy import validate_asset
     print(validate_asset("assets/type2").summary())
+
+    from cathsim_dmc.anatomy import Containment, lumen_field
+    inside = Containment(lumen_field(asset), tolerance_m=1e-3).contains(points)   # (N,) bool
 """
 
 from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RATIO, ARCH_TYPE_RATIO_RANGE,
@@ -16,6 +19,7 @@ from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RA
                                       build_arch, normalize_arch_type, path_to_site, with_arch_type)
 from cathsim_dmc.anatomy.asset import (FORMAT_VERSION, AortaAsset, BuildReport, Centerline, build_asset,
                                        load_asset, write_asset)
+from cathsim_dmc.anatomy.containment import Channel, Containment, LumenField, build_lumen_field, lumen_field
 from cathsim_dmc.anatomy.generate import (CACHE_ENV, arch_params, cache_root, generated_asset, params_hash,
                                           sample_arch_params)
 from cathsim_dmc.anatomy.mesh import Lumen, build_lumen, extrude_prisms, signed_distance
@@ -26,6 +30,7 @@ __all__ = [
     "PRESETS", "ArchModel", "ArchParams", "Vessel", "arch_type_of", "build_arch", "normalize_arch_type",
     "path_to_site", "with_arch_type",
     "FORMAT_VERSION", "AortaAsset", "BuildReport", "Centerline", "build_asset", "load_asset", "write_asset",
+    "Channel", "Containment", "LumenField", "build_lumen_field", "lumen_field",
     "CACHE_ENV", "arch_params", "cache_root", "generated_asset", "params_hash", "sample_arch_params",
     "Lumen", "build_lumen", "extrude_prisms", "signed_distance",
     "ValidationReport", "validate_asset",

@@ -116,6 +116,8 @@ class FollowerRobot(composer.Entity):
         half = wire_radius_m + channel_clearance_m
         wall = 0.5e-3
         channel_len = -base_z
+        self.channel_length_m = float(channel_len)  # from the carriage's start to the outlet
+        self.channel_half_width_m = float(half)  # of the square bore
         for i, (dx, dy) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
             size = [wall, half + 2 * wall, channel_len / 2] if dx else [half + 2 * wall, wall, channel_len / 2]
             wb.add("geom", name=f"guide{i}", type="box", size=size,
