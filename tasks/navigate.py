@@ -26,7 +26,7 @@ SUCCESS_REWARD = 10.0
 # tip to the target) or "geodesic" (along the vessel, so a wrong branch scores worse than
 # the right ostium; see `Navigate.reward_distance_m`).
 REWARDS = ("euclidean", "geodesic")
-EXTRA_OBSERVATIONS = ("wire_slack", "drive_force")
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position")
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
 

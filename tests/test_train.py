@@ -58,6 +58,9 @@ def test_trained_checkpoint_evaluates_with_cathsim_eval(tmp_path):
     (["algo=ppo"], "sac"),
     (["aorta=nope"], "type1"),
     (["trainer.n_envs=0"], "n_envs"),
+    (["reward=xyz"], "progress"),
+    (["task.insertion_limit_margin_m=-0.01"], "insertion_limit_margin_m"),
+    (["demos.episodes=1", "demos.share=1.5"], "demo_share"),
     (["trainer.device=tpu"], "cuda"),
     (["resume=/nonexistent/run"], "resume"),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.

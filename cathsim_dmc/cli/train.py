@@ -110,7 +110,7 @@ def run(cfg) -> dict:
     try:
         policy = CheckpointPolicy(model, obs, image_options(cfg.obs), _env_options(cfg), normalizer)
         report = evaluate_policy(eval_env, policy, label,
-                                 cfg.trainer.eval_episodes,
+                                 cfg.trainer.get("final_eval_episodes") or cfg.trainer.eval_episodes,
                                  seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": int(cfg.seed)})
     finally:
