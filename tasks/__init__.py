@@ -17,6 +17,10 @@ from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate
 TARGETS = ("bca", "lcca")
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
+# Straight shaft between the sheath's tip and the wire's shaped tip at the start, metres:
+# with the 3 mm sheath depth and the 15 mm angled tip, the tip starts 7-9 mm past the `entry`
+# site (see `Navigate`).
+TIP_START_PAST_SHEATH_M = 0.002
 ALL_TASKS = tuple((target, aorta) for aorta in available_aortas() for target in TARGETS)
 
 
@@ -72,7 +76,10 @@ def build_task(
     wire = Guidewire(**(guidewire or {}))
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
     contact = dict(channel_solref=wire.contact_solref, channel_solimp=wire.contact_solimp)
-    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **{**contact, **(robot or {})})
+    # The shaped tip starts just outside the introducer sheath, whatever its length.
+    start = dict(initial_insertion_m=wire.tip_length_m + TIP_START_PAST_SHEATH_M)
+    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m,
+                             **{**contact, **start, **(robot or {})})
     # The wall goes into the compiled model directly (NavigationEnvironment; fast build).
     wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp, hulls_in_mjcf=False)
     vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})

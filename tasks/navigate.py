@@ -63,6 +63,17 @@ class Navigate(composer.Task):
     in units of one full-speed insertion step (potential-style shaping); and
     `insertion_limit_margin_m` stops the carriage at the centerline length from the entry
     to the target plus this margin (None: the full stroke).
+
+    Access: the robot's introducer sheath goes in through the aorta's open lower end
+    (`Aorta.access_position_m`), its seal plate closing that end, and its tip (the
+    robot's outlet) lies `robot.sheath_depth_m` (3 mm) inside the lumen; see
+    `FollowerRobot`. The wire's shaped tip starts just past the sheath: with the default
+    robot and wire its end lies 7-9 mm (with the start's 0-2 mm insertion jitter) past
+    the `entry` site, which is 10 mm above the open end in every shipped aorta: the 15 mm
+    angled tip spans 12.3 mm along the axis, so it cannot start at the entry without
+    starting in the straight sheath. The wire may be in the lumen or in the
+    guide channel and sheath (`containment`); anywhere else it has escaped, which
+    truncates the episode like a divergence (`escaped`).
     """
 
     def __init__(
@@ -120,9 +131,13 @@ class Navigate(composer.Task):
         self._arena.attach(aorta)
         self._arena.frame_cameras(aorta.bounds_m)
         robot_frame = self._arena.attach(robot)
-        # Outlet behind the entry, so that the tip starts at the entry.
-        robot_frame.pos = aorta.entry_position_m - robot.initial_insertion_m * aorta.entry_direction
-        robot_frame.quat = _quat_z_to(aorta.entry_direction)
+        # The robot's introducer sheath seals the access (the vessel's open end) and
+        # reaches sheath_depth_m into the lumen: its tip, the robot's outlet, lies there.
+        _check_introducer(aorta, guidewire, robot)
+        direction = aorta.entry_direction / np.linalg.norm(aorta.entry_direction)
+        outlet = aorta.access_position_m + robot.sheath_depth_m * direction
+        robot_frame.pos = outlet
+        robot_frame.quat = _quat_z_to(direction)
         robot.attach(guidewire, robot.wire_attachment_site)
         self._target = TargetMarker(radius_m=self._delta_m, name="target")
         target_frame = self._arena.attach(self._target)
@@ -139,12 +154,12 @@ class Navigate(composer.Task):
         self._mean_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
         self._start_progress_m = 0.0  # tip progress at the start minus the carriage's (set per episode)
-        # The wire belongs in the lumen or in the introducer: the guide channel and the
-        # straight path on from its outlet to the entry. Anywhere else it has escaped.
+        # The wire belongs in the lumen or in the guide channel and sheath, which end at
+        # the outlet inside the lumen: no path outside the two is left. Anywhere else the
+        # wire has escaped. The channel's capsule reaches its bore's corners plus the
+        # tolerance, and past the outlet only into the lumen.
         tolerance_m = guidewire.radius_m + WALL_COMPLIANCE_M
-        outlet = aorta.entry_position_m - robot.initial_insertion_m * aorta.entry_direction
-        introducer = Channel(start_m=outlet - robot.channel_length_m * aorta.entry_direction,
-                             end_m=aorta.entry_position_m,
+        introducer = Channel(start_m=outlet - robot.channel_length_m * direction, end_m=outlet,
                              radius_m=robot.channel_half_width_m * np.sqrt(2.0) + tolerance_m)
         self._containment = Containment(lumen_field(aorta.asset), tolerance_m, [introducer])
         self._escaped = False
@@ -312,7 +327,7 @@ class Navigate(composer.Task):
     @property
     def containment(self) -> Containment:
         """Where the wire may be: the lumen (with the wire's radius plus `WALL_COMPLIANCE_M`
-        of tolerance) and the introducer."""
+        of tolerance) and the robot's guide channel and sheath, up to the sheath's tip."""
         return self._containment
 
     def target_distance_m(self, physics) -> float:
@@ -470,6 +485,21 @@ def _one_line(value) -> str:
         text = repr(value)
     text = " ".join(text.split())
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _check_introducer(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot) -> None:
+    """ValueError unless the robot's sheath can seal this aorta's access and the wire's tip can start outside it."""
+    if robot.seal_half_width_m is None:
+        raise ValueError("robot has no seal plate (seal_half_width_m=None): the access would stay open beside "
+                         "the sheath and a buckled wire could leave the vessel there")
+    needed_m = aorta.access_radius_m + aorta.wall_thickness_m
+    if robot.seal_half_width_m < needed_m:
+        raise ValueError(f"robot seal_half_width_m={robot.seal_half_width_m} m does not cover the open end of "
+                         f"aorta {aorta.name!r} (radius plus wall: {needed_m:.4g} m)")
+    shaped = bool(np.any(guidewire.rest_qpos))
+    if shaped and robot.initial_insertion_m <= guidewire.tip_length_m:
+        raise ValueError(f"robot initial_insertion_m={robot.initial_insertion_m} m must exceed the wire's "
+                         f"tip_length_m={guidewire.tip_length_m} m: the shaped tip must start outside the sheath")
 
 
 def _quat_z_to(direction) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The escape check: which points lie inside the lumen or the introducer (issue 17)."""
+"""The escape check: which points lie inside the lumen or the guide channel and sheath (issue 17)."""
 
 import types
 
@@ -24,11 +24,13 @@ def test_task_containment(aorta):
     far = np.array([hi + 0.02, lo - 0.02, [hi[0] + 0.03, 0.0, 0.0], [np.nan, 0.0, 0.0]])
     assert not allowed.contains(far).any()
 
-    # The whole guide channel and the path on to the entry, and a wire centre a
-    # clearance off the axis.
+    # The whole guide channel and sheath, then the lumen on to the entry, and a wire
+    # centre a clearance off the axis. The channel ends at the sheath's tip, in the lumen.
     path = np.linspace(introducer.start_m, task.aorta.entry_position_m, 300)
     assert allowed.contains(path).all()
     assert allowed.contains(path + [0.3e-3, 0.0, 0.3e-3]).all()
+    outlet = task.aorta.access_position_m + task.robot.sheath_depth_m * task.aorta.entry_direction
+    np.testing.assert_allclose(introducer.end_m, outlet)
 
     # Below the open lower end of the descending aorta: on the introducer's axis is
     # inside; beside the channel, where a looped wire would leave, is out.

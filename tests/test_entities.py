@@ -55,7 +55,8 @@ class _UserTask(composer.Task):
         self.wire = Guidewire(length_m=0.3, n_segments=30, n_tip_segments=6, tip_shape="j", tip_angle_deg=150)
         self.robot = FollowerRobot(wire_length_m=0.3, stroke_m=0.2, max_insertion_speed_m_s=0.02)
         frame = self._arena.attach(self.robot)
-        frame.pos = self._aorta.entry_position_m - 0.025 * self._aorta.entry_direction
+        # The sheath's tip (the robot's origin) into the vessel past the access, where its seal sits.
+        frame.pos = self._aorta.access_position_m + self.robot.sheath_depth_m * self._aorta.entry_direction
         frame.quat = [np.cos(-np.pi / 4), np.sin(-np.pi / 4), 0, 0]  # robot +z onto world +y
         self.robot.attach(self.wire, self.robot.wire_attachment_site)
         self.set_timesteps(control_timestep=0.05, physics_timestep=0.002)

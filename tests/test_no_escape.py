@@ -1,9 +1,9 @@
 """The wire never leaves the vessel, whatever the actions (issue: no wall escape).
 
 Escape = a wire point (segment end, segment centre or the tip) outside both the lumen
-(by more than the wire radius plus 0.5 mm of wall compliance) and the introducer (the
-guide channel and the straight path from its outlet to the entry): the task's
-`containment`, checked on the whole wire, also below the entry plane.
+(by more than the wire radius plus 0.5 mm of wall compliance) and the robot's guide
+channel and introducer sheath (which ends inside the lumen): the task's `containment`,
+checked on the whole wire, also below the entry plane.
 """
 
 import numpy as np
@@ -50,16 +50,6 @@ def _run(aorta, random_steps, max_steps, seed=0):
     return monitor, env
 
 
-# Measured when the check first saw the whole wire: pushed against a stalled tip, the
-# wire bows out sideways in the 15 mm between the guide channel's outlet and the
-# vessel's open end, where nothing guides it; in the issue's reproduction the bow grows
-# into a loop that leaves through the open end. Containment by construction (a sheath
-# into the vessel) is the fix; strict, so that these markers go when it lands.
-KNOWN_ESCAPE = pytest.mark.xfail(
-    strict=True, reason="issue 17 Build 1: the wire bows out of the unguided gap between the outlet and the open end")
-
-
-@KNOWN_ESCAPE
 @pytest.mark.parametrize("aorta", available_aortas())
 def test_no_escape_short(aorta):
     monitor, _ = _run(aorta, random_steps=150, max_steps=100)
@@ -95,7 +85,11 @@ def test_escape_truncates():
     assert timestep.mid() and not task.escaped and not task.step_info(env.physics).escaped
 
 
-@pytest.mark.xfail(strict=False, reason=KNOWN_ESCAPE.kwargs["reason"])  # not measured with this check yet
+# Before the introducer sheath the wire bowed out of the unguided 15 mm between the
+# guide channel's outlet and the vessel's open end (the short test escaped in every aorta
+# at steps 181-244). The sheath and seal close that gap (the short test passes); this
+# long protocol has not been run with them yet (about 18 min per three aortas).
+@pytest.mark.xfail(strict=False, reason="issue 17: not yet measured with the introducer sheath")
 @pytest.mark.slow
 @pytest.mark.parametrize("aorta", available_aortas())
 def test_no_escape_long(aorta):

@@ -20,6 +20,7 @@ import mujoco
 from dm_control import composer, mjcf
 
 from cathsim_dmc.anatomy import AortaAsset, load_asset
+from cathsim_dmc.anatomy.validate import open_end_plane
 from cathsim_dmc import geom_groups
 from cathsim_dmc.paths import resolve_asset
 
@@ -149,6 +150,41 @@ class Aorta(composer.Entity):
     @property
     def entry_direction(self) -> np.ndarray:
         return np.asarray(self._asset.entry_direction, dtype=float)
+
+    @property
+    def access_position_m(self) -> np.ndarray:
+        """Where the wire enters the vessel: the entry axis (through `entry_position_m`
+        along `entry_direction`) crossing the plane of the vessel's open end, in metres.
+
+        An introducer sheath comes in through here (see `FollowerRobot`): put its seal on
+        this point and its tip lies inside the lumen. The open end must face the entry
+        direction (within 1 degree), or a seal across the axis would leave the rim open
+        on one side; generated and imported assets are built that way.
+        """
+        centre, outward, _ = self._open_end()
+        direction = self.entry_direction / np.linalg.norm(self.entry_direction)
+        if float(-outward @ direction) < np.cos(np.radians(1.0)):
+            raise ValueError(f"aorta {self.name!r}: the open end (normal {outward.round(3).tolist()}) does not face "
+                             f"the entry direction {direction.round(3).tolist()}; an introducer cannot seal it")
+        entry = self.entry_position_m
+        return entry + float((centre - entry) @ outward) / float(direction @ outward) * direction
+
+    @property
+    def access_radius_m(self) -> float:
+        """Radius of the vessel's open end (the lumen at the access), in metres."""
+        return self._open_end()[2]
+
+    @property
+    def wall_thickness_m(self) -> float:
+        """Thickness of the vessel wall's collision pieces, in metres."""
+        return float(self._asset.wall_thickness_m)
+
+    def _open_end(self):
+        plane = open_end_plane(self._asset)
+        if plane is None:
+            raise ValueError(f"aorta {self.name!r} has no open_end in its meta.json: rebuild or re-import it "
+                             f"with cathsim-aorta")
+        return plane
 
     @property
     def bounds_m(self) -> np.ndarray:

@@ -1,14 +1,34 @@
 """FollowerRobot: a CathBot-style follower that inserts and rotates a guidewire.
 
-Frame: the robot's origin is its *outlet*, the point where the wire leaves the guide
-channel and enters the vessel; +z is the insertion direction. Behind the outlet lies the
-rail along -z, with a carriage on a prismatic joint (insertion) carrying the guidewire
-rotary platform on a hinge about the wire axis (rotation). The wire's proximal end is
-rigidly attached to that platform (perfect grip, no slip). A catheter rotary platform and
-two clamps complete the CathBot layout; they have joints but no actuators here.
+Frame: the robot's origin is its *outlet*, the tip of its introducer sheath, where the
+wire leaves the guide channel inside the vessel; +z is the insertion direction. Behind
+the outlet lies the rail along -z, with a carriage on a prismatic joint (insertion)
+carrying the guidewire rotary platform on a hinge about the wire axis (rotation). The
+wire's proximal end is rigidly attached to that platform (perfect grip, no slip). A
+catheter rotary platform and two clamps complete the CathBot layout; they have joints
+but no actuators here.
 
-The wire between the carriage and the outlet runs through a straight guide channel (an
-introducer), so it cannot buckle outside the anatomy.
+Introducer sheath and seal. From the carriage to the outlet the wire runs in one
+straight, square guide channel; its distal end is the introducer sheath, which goes in
+through the vessel's access (the open lower end of the generated descending aorta; the
+puncture of a real femoral artery) and ends `sheath_depth_m` inside the lumen. A square
+seal plate around the sheath, its vessel side `sheath_depth_m` behind the outlet, closes
+the access around it, as the artery wall closes around a real sheath. So the wire can
+only go forward into the lumen or back into the channel, and a wire that buckles back
+down the vessel meets the plate, not an exit. (Before the sheath, the channel ended 15
+mm outside the open end; a pushed wire bowed out of that unguided gap and, looping, left
+the anatomy: issue 17.) `Aorta.access_position_m` is where the seal goes: attach the
+robot at `access_position_m + sheath_depth_m * entry_direction`.
+
+The plate stands for a seal, not an object to see: it sits in the collision geom group,
+which observation renders never draw. Channel and plate are frictionless (a lubricated
+introducer) and carry the wire's contact parameters (`channel_solref`, `channel_solimp`);
+their contacts are not tissue loads, and `Navigate` leaves them out of the wall force.
+
+The wire's shaped tip must start outside the sheath (`initial_insertion_m` longer than
+the tip): set at its rest shape inside the straight bore, a bent tip would start through
+the channel's walls. Pulled into the sheath later, the elastic tip straightens, and it
+takes its shape back when pushed out again.
 
 Both actuated joints are integrated-velocity servos: the action sets a velocity, MuJoCo
 integrates it into a set point (an actuator state limited to the joint's travel), and a
@@ -33,7 +53,7 @@ class FollowerRobot(composer.Entity):
         self,
         wire_length_m: float = 0.35,
         stroke_m: float = 0.30,
-        initial_insertion_m: float = 0.025,
+        initial_insertion_m: float = 0.017,  # the 15 mm shaped tip plus 2 mm of straight shaft
         max_insertion_speed_m_s: float = 0.04,  # CathBot-class followers: tens of mm/s
         max_rotation_speed_rad_s: float = np.pi,  # half a turn per second
         max_insertion_force_n: float = 5.0,  # manual pushes stay below ~2 N; a robot stalls beyond
@@ -43,6 +63,9 @@ class FollowerRobot(composer.Entity):
         servo_stiffness_nm_rad: float = 50.0,
         channel_solref: tuple = (0.01, 1.0),  # 2 timesteps at the 5 ms default
         channel_solimp: tuple = (0.99, 0.999, 0.0005, 0.5, 2),
+        sheath_depth_m: float = 0.003,  # a few mm: the wire leaves the sheath inside the lumen, clear of the seal
+        seal_half_width_m: float | None = 0.02,  # covers an aorta's 12 mm open end and its 2 mm wall
+        seal_thickness_m: float = 0.002,  # as thick as the vessel wall, which stops the wire tunnelling
         name: str = "follower",
     ):
         """Builds the robot.
@@ -50,8 +73,9 @@ class FollowerRobot(composer.Entity):
         Args:
           wire_length_m: length of the wire it holds, in metres (sets the rail length).
           stroke_m: insertion travel of the carriage in metres.
-          initial_insertion_m: how far the wire tip starts past the outlet, in metres;
-            longer than the wire's shaped tip, which must start outside the channel.
+          initial_insertion_m: how far the wire tip starts past the outlet (the sheath's
+            tip), along the wire, in metres; longer than the wire's shaped tip, which
+            must start outside the channel.
           max_insertion_speed_m_s: insertion speed at action +1, in m/s.
           max_rotation_speed_rad_s: rotation rate at action +1, in rad/s.
           max_insertion_force_n: force limit of the insertion drive, in newtons: a
@@ -62,7 +86,14 @@ class FollowerRobot(composer.Entity):
           servo_stiffness_nm_rad: rotation servo stiffness, N m/rad.
           channel_solref, channel_solimp: contact parameters of the guide channel;
             give it the wire's values (MuJoCo mixes the two geoms'), or the channel
-            is softer than the vessel wall.
+            is softer than the vessel wall. The seal plate carries them too.
+          sheath_depth_m: how far the sheath's tip reaches past the seal plate's vessel
+            side, in metres: place the seal on the vessel's access (see
+            `Aorta.access_position_m`) and the outlet lies this deep in the lumen.
+          seal_half_width_m: half-width of the square seal plate around the sheath, in
+            metres; at least the access's radius plus the wall thickness, so that the
+            plate covers the wall's end. None: no plate (a bare channel).
+          seal_thickness_m: thickness of the seal plate along the wire, in metres.
           name: model name.
         """
         if stroke_m >= wire_length_m - initial_insertion_m:
@@ -70,6 +101,9 @@ class FollowerRobot(composer.Entity):
                 f"stroke_m={stroke_m} must be shorter than the wire behind the outlet "
                 f"({wire_length_m - initial_insertion_m} m) or the carriage hits the outlet"
             )
+        if not sheath_depth_m >= 0 or not seal_thickness_m > 0:
+            raise ValueError(f"sheath_depth_m={sheath_depth_m} must be >= 0 and seal_thickness_m="
+                             f"{seal_thickness_m} > 0 (metres)")
         self._mjcf_root = mjcf.RootElement(model=name)
         self._mjcf_root.compiler.angle = "radian"
         self.max_insertion_speed_m_s = float(max_insertion_speed_m_s)
@@ -111,22 +145,50 @@ class FollowerRobot(composer.Entity):
             clamp.add("geom", name=f"clamp_{side}", type="box", size=[0.002, 0.003, 0.002], mass=0.01)
             self._clamps.append(joint)
 
-        # Guide channel (introducer): four thin walls around the wire path, from the
-        # carriage's start to the outlet.
+        # Guide channel and introducer sheath: four thin walls around the wire path, from
+        # the carriage's start to the outlet (the sheath's tip).
         half = wire_radius_m + channel_clearance_m
         wall = 0.5e-3
         channel_len = -base_z
         self.channel_length_m = float(channel_len)  # from the carriage's start to the outlet
         self.channel_half_width_m = float(half)  # of the square bore
+        self.channel_outer_half_width_m = float(half + 2 * wall)  # of the walls' square outline
+        introducer = dict(
+            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY,
+            solref=list(channel_solref), solimp=list(channel_solimp),
+            # A lubricated introducer: frictionless (priority makes its condim win
+            # over the wire's), so pinching in the channel does not eat the drive force.
+            priority=1, condim=1)
+        self._guide_geoms = []
         for i, (dx, dy) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
             size = [wall, half + 2 * wall, channel_len / 2] if dx else [half + 2 * wall, wall, channel_len / 2]
-            wb.add("geom", name=f"guide{i}", type="box", size=size,
-                   pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
-                   contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, rgba=[0.45, 0.45, 0.5, 0.5],
-                   solref=list(channel_solref), solimp=list(channel_solimp),
-                   # A lubricated introducer: frictionless (priority makes its condim win
-                   # over the wire's), so pinching in the channel does not eat the drive force.
-                   priority=1, condim=1)
+            self._guide_geoms.append(wb.add(
+                "geom", name=f"guide{i}", type="box", size=size, pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
+                rgba=[0.45, 0.45, 0.5, 0.5], **introducer))
+
+        # Seal plate: a square plate with a square hole the bore's size, its vessel-side
+        # face sheath_depth_m behind the outlet. Its four pieces reach in to the bore,
+        # overlapping the channel walls (fixed geoms never collide with each other), so
+        # no seam is left between plate and sheath. Collision group: a model of the
+        # puncture's seal, not drawn in observations.
+        self.sheath_depth_m = float(sheath_depth_m)
+        self.seal_half_width_m = None if seal_half_width_m is None else float(seal_half_width_m)
+        self.seal_thickness_m = float(seal_thickness_m)
+        self._seal_geoms = []
+        if seal_half_width_m is not None:
+            outer = float(seal_half_width_m)
+            if outer <= self.channel_outer_half_width_m:
+                raise ValueError(f"seal_half_width_m={seal_half_width_m} must exceed the sheath's outer "
+                                 f"half-width {self.channel_outer_half_width_m:.4g} m")
+            z = -sheath_depth_m - seal_thickness_m / 2
+            t = seal_thickness_m / 2
+            side = (outer - half) / 2  # half-size of a piece beside the bore
+            pieces = (([side, outer, t], [half + side, 0, z]), ([side, outer, t], [-(half + side), 0, z]),
+                      ([half, side, t], [0, half + side, z]), ([half, side, t], [0, -(half + side), z]))
+            for i, (size, pos) in enumerate(pieces):
+                self._seal_geoms.append(wb.add(
+                    "geom", name=f"seal{i}", type="box", size=size, pos=pos, group=geom_groups.COLLISION,
+                    rgba=[0.45, 0.45, 0.5, 0.3], **introducer))
 
         # Integrated-velocity servos: d(setpoint)/dt = ctrl (joint units per second).
         self._insertion_actuator = root.actuator.add(
@@ -166,9 +228,15 @@ class FollowerRobot(composer.Entity):
     def actuators(self):
         return (self._insertion_actuator, self._rotation_actuator)
 
-    @composer.cached_property
+    @property
     def guide_geoms(self):
-        return tuple(g for g in self._mjcf_root.find_all("geom") if g.name.startswith("guide"))
+        """The guide channel's walls (its distal part is the introducer sheath)."""
+        return tuple(self._guide_geoms)
+
+    @property
+    def seal_geoms(self):
+        """The seal plate's pieces (empty without a plate)."""
+        return tuple(self._seal_geoms)
 
     def apply_action(self, physics, action):
         """Sets servo velocities from an action in [-1, 1]^2 (insertion, rotation)."""
