@@ -22,8 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-DEMOS = ["demos.episodes=20", "demos.pretrain_actor_steps=2000", "demos.critic_warmup_steps=1000",
-         "demos.bc_weight=0.5", "algo.learning_starts=500"]
+DEMOS = ["demos=expert"]
 # name -> (Hydra overrides, step budget)
 VARIANTS = {
     "paper_internal": (["obs=internal", "algo=sac", "reward=euclidean"], 100_000),

@@ -260,6 +260,10 @@ class Navigate(composer.Task):
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
         self._mean_force_n = 0.0
+        # composer runs the entities' hooks after this one; the start distances need the
+        # wire in its rest shape (its hook is idempotent) and positions computed from it.
+        self._guidewire.initialize_episode(physics, random_state)
+        physics.forward()
         self._start_progress_m = self._paths.progress_m(self.tip_position_m(physics)) - insertion
         self._reward_distance_m = self.reward_distance_m(physics)
         self._previous_reward_distance_m = self._reward_distance_m

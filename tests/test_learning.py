@@ -72,7 +72,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
     run = tmp_path / "run"
     args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
             "algo.buffer_size=2000", "trainer.total_timesteps=40", "trainer.checkpoint_every=20",
-            "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
+            "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
             "trainer.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
             "demos.critic_warmup_steps=5", f"hydra.run.dir={run}"]
     result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=tmp_path,
@@ -97,3 +97,23 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
     action = policy(obs, env)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1)
     env.close()
+
+
+def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_path):
+    """Rewards recomputed from a cathsim-collect dataset's tip positions equal the live ones."""
+    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.rl.demos import dataset_transitions, expert_transitions
+
+    collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7,
+            show_progress=False)
+    from_data = dataset_transitions(tmp_path / "data", env.task, env.observation_space)
+    live = expert_transitions(env, episodes=2, seed=7)
+    assert from_data.episodes == 2 and len(from_data) == len(live)
+    np.testing.assert_allclose(from_data.rewards, live.rewards, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(from_data.terminated, live.terminated)
+    np.testing.assert_allclose(from_data.actions, live.actions, atol=1e-6)
+    for key in ("joint_pos", "joint_vel"):
+        np.testing.assert_allclose(from_data.observations[key], live.observations[key], atol=1e-5)
+        np.testing.assert_allclose(from_data.next_observations[key], live.next_observations[key], atol=1e-5)
+    first_only = dataset_transitions(tmp_path / "data", env.task, env.observation_space, episodes=1)
+    assert first_only.episodes == 1 and len(first_only) == int(np.flatnonzero(live.terminated)[0]) + 1

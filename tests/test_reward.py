@@ -70,8 +70,9 @@ def test_progress_reward_pays_for_insertion_and_charges_for_retraction():
     env = tasks.load("bca", "type1", seed=0, reward="geodesic", progress_weight=1.0)
     env.reset()
     forward, infos = _run(env, [[1.0, 0.0]] * 10)
-    # Straight up the descending aorta: each full-speed step gains close to its 4 mm.
-    assert np.all(forward[3:] > 0.5)
+    # Straight up the descending aorta: each full-speed step gains close to its 4 mm
+    # (the first from rest a little less), measured from the start pose.
+    assert np.all(forward > 0.3) and np.all(forward[3:] > 0.5)
     backward, _ = _run(env, [[-1.0, 0.0]] * 5)
     assert np.all(backward[2:] < 0)
     # The distance term alone matches the task's own geodesic reading.
@@ -111,6 +112,7 @@ def test_slack_grows_when_the_tip_stalls_and_the_drive_pushes():
     env = tasks.load("bca", "type1", seed=0, extra_observations=("wire_slack", "drive_force"))
     timestep = env.reset()
     assert {"wire_slack", "drive_force"} <= set(timestep.observation)
+    assert abs(timestep.observation["wire_slack"][0]) < 1e-3  # measured from the start pose
     _, infos = _run(env, [[1.0, 0.0]] * 15)
     # Free in the descending aorta: the tip follows the carriage.
     assert abs(infos[-1].slack_m) < 0.01

@@ -8,9 +8,9 @@ import zipfile
 import numpy as np
 import pytest
 
-TINY = ["obs=internal", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-        "algo.buffer_size=2000", "trainer.checkpoint_every=30", "trainer.eval_episodes=1", "trainer.video=false",
-        "trainer.progress_bar=false"]
+TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
+        "algo.buffer_size=2000", "trainer.checkpoint_every=30", "trainer.eval_every=0", "trainer.eval_episodes=1",
+        "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
 
 
 def _train(args, cwd):
@@ -59,6 +59,7 @@ def test_trained_checkpoint_evaluates_with_cathsim_eval(tmp_path):
     (["aorta=nope"], "type1"),
     (["trainer.n_envs=0"], "n_envs"),
     (["reward=xyz"], "progress"),
+    (["demos=xyz"], "expert"),
     (["task.insertion_limit_margin_m=-0.01"], "insertion_limit_margin_m"),
     (["demos.episodes=1", "demos.share=1.5"], "demo_share"),
     (["trainer.device=tpu"], "cuda"),
@@ -127,7 +128,7 @@ def test_seed_sweep_through_submitit_local_writes_one_table(tmp_path):
     # the submitit executor: each run is a separate process, pickled and launched.
     sweep = tmp_path / "sweep"
     result = _train(["-m", "hydra/launcher=local", "seed=0,1", *TINY, "trainer.total_timesteps=30",
-                     "trainer.eval_episodes=2", f"hydra.sweep.dir={sweep}"], tmp_path)
+                     "trainer.final_eval_episodes=2", f"hydra.sweep.dir={sweep}"], tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     runs = sorted(p.parent.parent.name for p in sweep.glob("*/eval/metrics.json"))
     assert runs == ["bca-type1-internal-seed0", "bca-type1-internal-seed1"]

@@ -120,16 +120,15 @@ def run(cfg) -> dict:
     return report
 
 
-def _algo_choices() -> list:
-    from cathsim_dmc.paths import conf_root
+def _group_choices(group: str):
+    """The options of a config group (its YAML files), for validating the command line."""
 
-    return sorted(path.stem for path in (conf_root() / "algo").glob("*.yaml"))
+    def choices() -> list:
+        from cathsim_dmc.paths import conf_root
 
+        return sorted(path.stem for path in (conf_root() / group).glob("*.yaml"))
 
-def _reward_choices() -> list:
-    from cathsim_dmc.paths import conf_root
-
-    return sorted(path.stem for path in (conf_root() / "reward").glob("*.yaml"))
+    return choices
 
 
 def main():
@@ -139,7 +138,7 @@ def main():
 
     run_hydra(run, "train", {
         "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
-        "algo": _algo_choices, "reward": _reward_choices,
+        "algo": _group_choices("algo"), "reward": _group_choices("reward"), "demos": _group_choices("demos"),
     })
 
 
