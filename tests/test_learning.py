@@ -117,3 +117,13 @@ def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_
         np.testing.assert_allclose(from_data.next_observations[key], live.next_observations[key], atol=1e-5)
     first_only = dataset_transitions(tmp_path / "data", env.task, env.observation_space, episodes=1)
     assert first_only.episodes == 1 and len(first_only) == int(np.flatnonzero(live.terminated)[0]) + 1
+
+
+def test_demonstrations_beyond_the_capacity_are_refused(env):
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions
+
+    demos = expert_transitions(env, episodes=1, seed=0)
+    buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu",
+                              demo_capacity=len(demos) - 1)
+    with pytest.raises(ValueError, match="demos.capacity"):
+        add_transitions(buffer, demos)

@@ -34,7 +34,7 @@ class DemoReplayBuffer(DictReplayBuffer):
 
     def __init__(self, buffer_size, observation_space, action_space, device="auto", n_envs: int = 1,
                  optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
-                 demo_share: float = 0.5, demo_capacity: int = 50_000):
+                 demo_share: float = 0.5, demo_capacity: int = 20_000):
         if not 0.0 <= demo_share <= 1.0:
             raise ValueError(f"demo_share={demo_share!r} must be in [0, 1]")
         super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
@@ -117,6 +117,10 @@ def expert_transitions(env, episodes: int, seed: int = 0, policy=None) -> Transi
 
 def add_transitions(buffer: DemoReplayBuffer, transitions: Transitions) -> None:
     """Store `transitions` as demonstrations (SB3's timeout convention: a truncation is not a terminal)."""
+    room = buffer.demos.buffer_size - buffer.demos.size()
+    if len(transitions) > room:
+        raise ValueError(f"{len(transitions):,} demonstration transitions do not fit in demos.capacity="
+                         f"{buffer.demos.buffer_size:,} ({room:,} free); raise demos.capacity")
     for i in range(len(transitions)):
         done = bool(transitions.terminated[i] or transitions.truncated[i])
         buffer.demos.add({k: v[i:i + 1] for k, v in transitions.observations.items()},

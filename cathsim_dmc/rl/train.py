@@ -402,7 +402,9 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     # with the paper's 1e6 buffer does not need 24.9 GiB.
     capacity = max(1, min(int(algo["buffer_size"]), total))
     algo = dict(algo, buffer_size=capacity)
-    check_replay_memory(env.observation_space, env.action_space.shape[0], capacity)
+    # The demonstrations have a buffer of their own, checked together with the agent's.
+    demo_capacity = int(demos["capacity"]) if _use_demos(demos) else 0
+    check_replay_memory(env.observation_space, env.action_space.shape[0], capacity + demo_capacity)
     if trainer.get("normalize_observations"):
         env = normalize_observations(env, ckpt_dir / LAST_CHECKPOINT if resume else None)
     tb_dir = str(run_dir / "tensorboard")
