@@ -28,47 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-class _Centerline:
-    """A polyline with arc length, closest-point queries and interpolation."""
-
-    def __init__(self, points, radius, extension_m=0.03):
-        points = np.asarray(points, dtype=float)
-        radius = np.asarray(radius, dtype=float)
-        # Continued straight past the target, so that a tip which overshoots has an arc
-        # length beyond `length` (the target) instead of being clamped to it.
-        end_direction = points[-1] - points[-2]
-        end_direction /= np.linalg.norm(end_direction)
-        self.points = np.vstack([points, points[-1] + extension_m * end_direction])
-        self.radius = np.append(radius, radius[-1])
-        seg = np.diff(self.points, axis=0)
-        self._seg = seg
-        self._seg_len = np.linalg.norm(seg, axis=1)
-        self.arclength = np.concatenate([[0.0], np.cumsum(self._seg_len)])
-        self.length = float(self.arclength[-2])  # arc length of the target
-
-    def locate(self, p, s_min=-np.inf, s_max=np.inf):
-        """(arc length, depth outside the tube) of p, over arc lengths in [s_min, s_max].
-
-        The tube is the centerline +- the lumen radius. The arc length chosen is where p
-        lies deepest inside it, so near an ostium a tip in the parent vessel is placed in
-        the parent, not in the (closer but narrower) start of the branch. A negative
-        depth means inside the lumen of the path to the target.
-        """
-        a = self.points[:-1]
-        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / np.maximum(self._seg_len**2, 1e-18), 0, 1)
-        s = self.arclength[:-1] + t * self._seg_len
-        d = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1) - np.interp(s, self.arclength, self.radius)
-        d = np.where((s >= s_min) & (s <= s_max), d, np.inf)
-        i = int(np.argmin(d))
-        return float(s[i]), float(d[i])
-
-    def at(self, s):
-        s = float(np.clip(s, 0.0, self.arclength[-1]))
-        return np.array([np.interp(s, self.arclength, self.points[:, k]) for k in range(3)])
-
-    def radius_at(self, s):
-        return float(np.interp(s, self.arclength, self.radius))
+from cathsim_dmc.anatomy.paths import CenterlinePath
 
 
 class CenterlineExpert:
@@ -103,7 +63,7 @@ class CenterlineExpert:
 
     def reset(self, env):
         task = env.task
-        self._line = _Centerline(*task.aorta.asset.centerlines[task.target_name])
+        self._line = CenterlinePath(*task.aorta.asset.centerlines[task.target_name])
         self._s = self._line.locate(task.tip_position_m(env.physics))[0]
         self._best_s = self._s
         self._since_progress = 0
@@ -113,9 +73,9 @@ class CenterlineExpert:
         self._retreat_to = None
         # The end game's geometry: the target, the branch axis arriving at it, its radius.
         line = self._line
-        self._target = line.at(line.length)
-        self._target_radius = line.radius_at(line.length)
-        axis = self._target - line.at(line.length - self._target_radius)
+        self._target = line.at(line.length_m)
+        self._target_radius = line.radius_at(line.length_m)
+        axis = self._target - line.at(line.length_m - self._target_radius)
         self._target_axis = axis / np.linalg.norm(axis)
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
@@ -137,7 +97,7 @@ class CenterlineExpert:
         s, outside = line.locate(tip, self._s - 0.01, self._s + 0.03)
         self._s = s
         radius = line.radius_at(s)
-        remaining = line.length - s
+        remaining = line.length_m - s
         if s > self._best_s + self.min_progress_m:
             self._best_s, self._since_progress, self._backoffs = s, 0, 0
         else:
@@ -157,7 +117,7 @@ class CenterlineExpert:
         # Aim: the bend (tip relative to the tip base, across the shaft) towards the
         # look-ahead point (relative to the tip base, across the shaft).
         # Near the target, aim at the target itself: the last look-ahead would overshoot.
-        aim_point = line.at(min(s + self.lookahead_radii * radius, line.length))
+        aim_point = line.at(min(s + self.lookahead_radii * radius, line.length_m))
         bend = _across(tip - base, shaft)
         aim = _across(aim_point - base, shaft)
         straight_ahead = np.linalg.norm(aim) < 0.25 * np.linalg.norm(aim_point - base)
@@ -203,7 +163,7 @@ class CenterlineExpert:
         stroke, k = divmod(phase, 2 * half)
         past = radius * (k / half if k <= half else (2 * half - k) / half)
         if stroke >= self.strokes_per_retreat:
-            self._retreat_to = self._line.length - self.retreat_radii * radius
+            self._retreat_to = self._line.length_m - self.retreat_radii * radius
             self._at_depth = 0
             return np.array([-1.0, rotation], dtype=np.float32)
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))

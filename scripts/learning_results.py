@@ -83,7 +83,10 @@ def summarise(folder: Path) -> dict:
 
 def _median(values):
     values = sorted(v for v in values if v is not None)
-    return values[len(values) // 2] if values else None
+    if not values:
+        return None
+    middle = len(values) // 2
+    return values[middle] if len(values) % 2 else (values[middle - 1] + values[middle]) / 2
 
 
 def report(root: Path, out: Path, plot: Path | None) -> None:
@@ -98,13 +101,14 @@ def report(root: Path, out: Path, plot: Path | None) -> None:
             curves[(variant, task)] = {seed: r["evaluations"] for seed, r in runs.items()}
             fmt_steps = lambda r: f"{r['steps_to_aim']:,}" if r["steps_to_aim"] else f"not by {r['last_step']:,}"  # noqa: E731
             fmt_wall = lambda r: f"{r['wall_s_to_aim'] / 60:.0f} min" if r["wall_s_to_aim"] else "-"  # noqa: E731
-            fmt_final = lambda r: f"{100 * r['final_success']:.0f}%" if r["final_success"] is not None else "running"  # noqa: E731
+            fmt_final = lambda r: (f"{100 * r['final_success']:.0f}%" if r["final_success"] is not None  # noqa: E731
+                                   else f"no report (stopped at {r['last_step']:,})")
             per_seed = "; ".join(f"seed {s}: {fmt_steps(r)}, {fmt_wall(r)}, final {fmt_final(r)}"
                                  for s, r in sorted(runs.items()))
             finals = [r["final_success"] for r in runs.values()]
             median_final = _median(finals)
             rows.append(f"| {variant} | {task} | {len(runs)} | "
-                        f"{_fmt_int(_median([r['steps_to_aim'] for r in runs.values()]))} | "
+                        f"{_fmt_int(_median([r['steps_to_aim'] or float('inf') for r in runs.values()]))} | "
                         f"{'-' if median_final is None else f'{100 * median_final:.0f}%'} | {per_seed} |")
     lines = ["| variant | task | seeds | median steps to 90% | median final success (50 episodes) | per seed: steps to 90%, wall time to 90%, final |",
              "|---|---|---|---|---|---|", *rows]
@@ -116,7 +120,10 @@ def report(root: Path, out: Path, plot: Path | None) -> None:
 
 
 def _fmt_int(value):
-    return f"{value:,}" if value is not None else "-"
+    """A step count; a seed that never reached the aim counts as infinitely many steps."""
+    if value is None or value == float("inf"):
+        return "not reached"
+    return f"{value:,.0f}"
 
 
 def _plot(curves: dict, path: Path) -> None:
