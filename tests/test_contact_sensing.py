@@ -69,7 +69,9 @@ def test_mean_is_the_average_over_every_physics_step(env):
 def test_mean_and_end_of_step_force_agree_on_average_at_rest(env):
     """Held still against the wall, the wire's contacts keep chattering (the number of
     contacts changes from one physics step to the next). Both labels then estimate the
-    same load: their averages over the hold agree, and the step mean scatters less."""
+    same load: their averages over the hold agree, and the step mean jumps less from one
+    step to the next (the load itself may still creep while the shaft settles, so the
+    scatter is taken between consecutive steps, not around the hold's mean)."""
     _drive_into_the_arch(env)
     ends, means = [], []
     for step in range(50):
@@ -79,4 +81,4 @@ def test_mean_and_end_of_step_force_agree_on_average_at_rest(env):
             means.append(info["mean_contact_force_n"])
     assert np.mean(means) > 0.01
     assert np.mean(means) == pytest.approx(np.mean(ends), rel=0.15)
-    assert np.std(means) < 0.5 * np.std(ends)
+    assert np.std(np.diff(means)) < 0.5 * np.std(np.diff(ends))
