@@ -150,6 +150,7 @@ class Navigate(composer.Task):
         self._success = False
         self._diverged = False
         self._contacts = None  # cached per control step
+        self._tip_location = None  # the tip on the centerline tree, cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
@@ -264,7 +265,8 @@ class Navigate(composer.Task):
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
         self._guidewire.initialize_episode(physics, random_state)
         physics.forward()
-        self._start_progress_m = self._paths.progress_m(self.tip_position_m(physics)) - insertion
+        self._tip_location = None
+        self._start_progress_m = self._locate_tip(physics)[1] - insertion
         self._reward_distance_m = self.reward_distance_m(physics)
         self._previous_reward_distance_m = self._reward_distance_m
         if isinstance(physics, cs_physics.ConstraintSensingPhysics):
@@ -279,6 +281,7 @@ class Navigate(composer.Task):
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
         self._contacts = None
+        self._tip_location = None
         self._force_sum_n, self._force_samples = 0.0, 0
 
     def after_step(self, physics, random_state):
@@ -337,16 +340,25 @@ class Navigate(composer.Task):
     def target_distance_m(self, physics) -> float:
         return float(np.linalg.norm(self.tip_position_m(physics) - self.target_position_m))
 
+    def _locate_tip(self, physics) -> tuple[str, float, float]:
+        """The tip on the centerline tree (line, arc length, depth), located once per step:
+        the reward, the path distance and the slack all read it."""
+        if self._tip_location is None:
+            self._tip_location = self._paths.locate(self.tip_position_m(physics), prefer=self._target_name)
+        return self._tip_location
+
     def path_distance_m(self, physics) -> float:
         """Tip to target along the vessel (`CenterlineTree.geodesic_distance_m`), metres."""
-        return self._paths.geodesic_distance_m(self.tip_position_m(physics), self._target_name)
+        return self._paths.geodesic_from_location(self._locate_tip(physics), self._target_name)
 
     def reward_distance_m(self, physics) -> float:
         """The distance the dense reward penalises for the current tip (`distance_for_reward_m`)."""
-        return self.distance_for_reward_m(self.tip_position_m(physics))
+        location = self._locate_tip(physics) if self._reward_kind == "geodesic" else None
+        return self.distance_for_reward_m(self.tip_position_m(physics), location)
 
-    def distance_for_reward_m(self, tip_position_m) -> float:
-        """The distance the dense reward penalises for a tip at `tip_position_m`, in metres.
+    def distance_for_reward_m(self, tip_position_m, location: tuple | None = None) -> float:
+        """The distance the dense reward penalises for a tip at `tip_position_m`, in metres
+        (`location`: the tip already located on the centerline tree, if it has been).
 
         "euclidean": the straight line from tip to target (the paper's). "geodesic": the
         larger of the distance along the vessel and the straight line. Along the vessel, a
@@ -358,7 +370,8 @@ class Navigate(composer.Task):
         euclidean = float(np.linalg.norm(tip - self.target_position_m))
         if self._reward_kind == "euclidean":
             return euclidean
-        return max(self._paths.geodesic_distance_m(tip, self._target_name), euclidean)
+        location = location or self._paths.locate(tip, prefer=self._target_name)
+        return max(self._paths.geodesic_from_location(location, self._target_name), euclidean)
 
     def slack_m(self, physics) -> float:
         """Carriage advance minus tip advance along the vessel since the start, metres.
@@ -367,7 +380,7 @@ class Navigate(composer.Task):
         drive; it grows when the tip stalls and the shaft buckles behind it. A follower
         robot sees the same condition as a rising drive force (`drive_force_n`).
         """
-        progress = self._paths.progress_m(self.tip_position_m(physics)) - self._start_progress_m
+        progress = self._locate_tip(physics)[1] - self._start_progress_m
         return self._robot.insertion_m(physics) - progress
 
     def contact_forces(self, physics) -> cs_physics.ContactForces:

@@ -125,7 +125,11 @@ class CenterlineTree:
         back to the junction plus the way on from there. A point outside every tube adds
         its depth outside (the ascending aorta has no centerline of its own).
         """
-        name, s, depth = self.locate(point_m, prefer=target)
+        return self.geodesic_from_location(self.locate(point_m, prefer=target), target)
+
+    def geodesic_from_location(self, location: tuple[str, float, float], target: str) -> float:
+        """`geodesic_distance_m` for a point already located (`locate(point, prefer=target)`)."""
+        name, s, depth = location
         target_line = self.lines[target]
         if name == target:
             along = abs(target_line.length_m - s)
@@ -136,7 +140,3 @@ class CenterlineTree:
             else:
                 along = (s - junction) + (target_line.length_m - self.junction_arclength_m(target, name))
         return float(along + max(depth, 0.0))
-
-    def progress_m(self, point_m) -> float:
-        """Arc length from the entry of the point's deepest line (how far along the vessel it is)."""
-        return self.locate(point_m)[1]
