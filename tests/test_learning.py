@@ -98,6 +98,15 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
     assert action.shape == (2,) and np.all(np.abs(action) <= 1)
     env.close()
 
+    # Resuming continues the saved statistics (and the run's clock in evaluations.jsonl).
+    count_before = stats.count
+    again = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", f"resume={run}",
+                            "trainer.total_timesteps=60", f"hydra.run.dir={tmp_path}/resume"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stderr[-2000:]
+    resumed = load_checkpoint_policy(checkpoints / "last.zip").normalizer.obs_rms["joint_pos"]
+    assert resumed.count > count_before + 15
+
 
 def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_path):
     """Rewards recomputed from a cathsim-collect dataset's tip positions equal the live ones."""

@@ -52,7 +52,7 @@ def run(cfg) -> dict:
 
     from cathsim_dmc.cli.eval import evaluate_policy, image_options
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy, load_normalizer, normalizer_path
+    from cathsim_dmc.policies import CheckpointPolicy, load_checkpoint_policy
     from cathsim_dmc.rl.train import BEST_MODEL, CHECKPOINT_DIR, best_record, make_vec_env, train
 
     resume = cfg.get("resume")
@@ -93,23 +93,20 @@ def run(cfg) -> dict:
     log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
              result.steps / max(result.seconds, 1e-9))
 
-    model, label = result.model, f"sac-{obs}"
-    normalizer = model.get_vec_normalize_env()
     best = best_record(run_dir)
     if cfg.trainer.get("final_policy", "last") == "best" and best is not None:
-        from stable_baselines3 import SAC
-
-        model = SAC.load(run_dir / CHECKPOINT_DIR / BEST_MODEL, device=cfg.trainer.device)
-        if normalizer is not None:
-            normalizer = load_normalizer(normalizer_path(run_dir / CHECKPOINT_DIR / BEST_MODEL))
+        # Loaded as cathsim-eval loads it: the model, its normaliser and its policy.json.
+        policy = load_checkpoint_policy(run_dir / CHECKPOINT_DIR / BEST_MODEL)
         log.info("evaluating best.zip (step %d: %.0f%% success in the periodic evaluation)", best["step"],
                  100 * best["success_rate"])
-    if normalizer is not None:
-        normalizer.training = False
+    else:
+        normalizer = result.model.get_vec_normalize_env()
+        if normalizer is not None:
+            normalizer.training = False
+        policy = CheckpointPolicy(result.model, obs, image_options(cfg.obs), _env_options(cfg), normalizer)
     eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **eval_kwargs)
     try:
-        policy = CheckpointPolicy(model, obs, image_options(cfg.obs), _env_options(cfg), normalizer)
-        report = evaluate_policy(eval_env, policy, label,
+        report = evaluate_policy(eval_env, policy, f"sac-{obs}",
                                  cfg.trainer.get("final_eval_episodes") or cfg.trainer.eval_episodes,
                                  seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": int(cfg.seed)})

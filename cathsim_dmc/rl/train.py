@@ -405,10 +405,10 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     # The demonstrations have a buffer of their own, checked together with the agent's.
     demo_capacity = int(demos["capacity"]) if _use_demos(demos) else 0
     check_replay_memory(env.observation_space, env.action_space.shape[0], capacity + demo_capacity)
-    if trainer.get("normalize_observations"):
-        env = normalize_observations(env, ckpt_dir / LAST_CHECKPOINT if resume else None)
     tb_dir = str(run_dir / "tensorboard")
     ckpt_dir = run_dir / CHECKPOINT_DIR
+    if trainer.get("normalize_observations"):
+        env = normalize_observations(env, ckpt_dir / LAST_CHECKPOINT if resume else None)
     if resume:
         last = ckpt_dir / LAST_CHECKPOINT
         if not last.is_file():
@@ -449,8 +449,9 @@ def _use_demos(demos: dict | None) -> bool:
 
 
 def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True) -> None:
-    """Record the expert's episodes into the model's DemoReplayBuffer, then (on a new run)
-    pre-train the actor and warm up the critic on them. Logged under demos/."""
+    """Record the expert's episodes (or read them from `demos["path"]`) into the model's
+    DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
+    them; each stage is logged with its size, loss and time."""
     from cathsim_dmc.rl.demos import (DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions,
                                       pretrain_actor, warm_up_critic)
 
