@@ -1,7 +1,7 @@
 """Learning from demonstrations: expert transitions mixed into every SAC batch.
 
     buffer = model.replay_buffer                  # a DemoReplayBuffer (see build_sac)
-    add_transitions(buffer, expert_transitions(make_env, episodes=20, seed=0))
+    add_transitions(buffer, expert_transitions(env, episodes=20, seed=0))
     pretrain_actor(model, steps=2000)             # behavioural cloning of the actor's mean
     warm_up_critic(model, steps=1000)             # critic-only updates, actor fixed
 
@@ -158,30 +158,33 @@ def warm_up_critic(model, steps: int, batch_size: int | None = None) -> float:
     A critic trained against a pre-trained actor starts the actor's updates from values
     that already favour the expert's actions, instead of undoing the pre-training.
     """
-    from stable_baselines3.common.utils import polyak_update
-
     batch_size = int(batch_size or model.batch_size)
-    critic, target, actor = model.critic, model.critic_target, model.actor
     ent_coef = (torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None
                 else model.ent_coef_tensor)
-    critic.set_training_mode(True)
+    model.critic.set_training_mode(True)
     loss_value = float("nan")
     for _ in range(int(steps)):
         data = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
-        with torch.no_grad():
-            next_actions, next_log_prob = actor.action_log_prob(data.next_observations)
-            next_q = torch.min(torch.cat(target(data.next_observations, next_actions), dim=1), dim=1, keepdim=True)[0]
-            next_q = next_q - ent_coef * next_log_prob.reshape(-1, 1)
-            discounts = data.discounts if data.discounts is not None else model.gamma
-            target_q = data.rewards + (1 - data.dones) * discounts * next_q
-        loss = 0.5 * sum(torch.nn.functional.mse_loss(q, target_q) for q in critic(data.observations, data.actions))
-        critic.optimizer.zero_grad()
-        loss.backward()
-        critic.optimizer.step()
-        polyak_update(critic.parameters(), target.parameters(), model.tau)
+        loss = _critic_step(model, data, ent_coef)
+        polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
         loss_value = float(loss.item())
-    critic.set_training_mode(False)
+    model.critic.set_training_mode(False)
     return loss_value
+
+
+def _critic_step(model, data, ent_coef) -> torch.Tensor:
+    """One soft Bellman update of `model`'s twin critics on `data`; returns the loss."""
+    with torch.no_grad():
+        next_actions, next_log_prob = model.actor.action_log_prob(data.next_observations)
+        next_q = torch.cat(model.critic_target(data.next_observations, next_actions), dim=1)
+        next_q = next_q.min(dim=1, keepdim=True)[0] - ent_coef * next_log_prob.reshape(-1, 1)
+        discounts = data.discounts if data.discounts is not None else model.gamma
+        target_q = data.rewards + (1 - data.dones) * discounts * next_q
+    loss = 0.5 * sum(torch.nn.functional.mse_loss(q, target_q) for q in model.critic(data.observations, data.actions))
+    model.critic.optimizer.zero_grad()
+    loss.backward()
+    model.critic.optimizer.step()
+    return loss
 
 
 def dataset_transitions(paths, task, observation_space, episodes: int | None = None) -> Transitions:
@@ -272,17 +275,7 @@ class SACfD(SAC):
                 self.ent_coef_optimizer.step()
             else:
                 ent_coef = self.ent_coef_tensor
-            with torch.no_grad():
-                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
-                next_q = torch.cat(self.critic_target(data.next_observations, next_actions), dim=1)
-                next_q = next_q.min(dim=1, keepdim=True)[0] - ent_coef * next_log_prob.reshape(-1, 1)
-                discounts = data.discounts if data.discounts is not None else self.gamma
-                target_q = data.rewards + (1 - data.dones) * discounts * next_q
-            critic_loss = 0.5 * sum(torch.nn.functional.mse_loss(q, target_q)
-                                    for q in self.critic(data.observations, data.actions))
-            self.critic.optimizer.zero_grad()
-            critic_loss.backward()
-            self.critic.optimizer.step()
+            critic_loss = _critic_step(self, data, ent_coef)
 
             q_pi = torch.cat(self.critic(data.observations, actions_pi), dim=1).min(dim=1, keepdim=True)[0]
             actor_loss = (ent_coef * log_prob - q_pi).mean()

@@ -76,7 +76,6 @@ class ENNExtractor(BaseFeaturesExtractor):
         return torch.cat(codes, dim=1)
 
 
-
 class LayerNormCritic(ContinuousCritic):
     """SB3's ContinuousCritic with LayerNorm after each hidden Linear layer."""
 
