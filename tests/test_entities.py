@@ -104,3 +104,24 @@ def test_entity_observables_report_their_joints():
     assert observation["follower/joint_pos"].shape == (2,)
     tip = env.physics.bind(wire.tip_site).xpos
     np.testing.assert_allclose(observation["follower/guidewire/tip_position"], tip)
+
+
+def test_robot_pose_features_are_bounded_and_do_not_wrap():
+    wire, robot = Guidewire(n_segments=6, n_tip_segments=2), FollowerRobot()
+    arena = OperatingArena()
+    arena.attach(robot)
+    robot.attach(wire, robot.wire_attachment_site)
+    for item in (robot.observables.pose_features, robot.observables.rate_features, robot.observables.drive_force):
+        item.enabled = True
+    env = composer.Environment(composer.NullTask(arena), strip_singleton_obs_buffer_dim=True)
+    env.reset()
+    robot.set_pose(env.physics, insertion_m=0.15, rotation_rad=7.0)  # past a full turn
+    observation = env.step(np.zeros(2)).observation
+    insertion, rotation = env.physics.bind(robot.joints).qpos
+    assert rotation > 2 * np.pi and insertion == pytest.approx(0.15, abs=1e-3)
+    np.testing.assert_allclose(observation["follower/pose_features"],
+                               [insertion / robot.stroke_m, np.sin(rotation), np.cos(rotation)], atol=1e-9)
+    rates = env.physics.bind(robot.joints).qvel
+    np.testing.assert_allclose(observation["follower/rate_features"],
+                               rates / [robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s], atol=1e-9)
+    assert observation["follower/drive_force"].shape == (1,)
