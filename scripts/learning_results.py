@@ -28,6 +28,9 @@ VARIANTS = {
     "paper_internal": (["obs=internal", "algo=sac", "reward=euclidean"], 100_000),
     "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress"], 100_000),
     "demos_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS], 20_000),
+    # The robot stops at the target's centerline length + 20 mm (task.insertion_limit_margin_m).
+    "demos_limit_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
+                              "task.insertion_limit_margin_m=0.02"], 20_000),
     "demos_bc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
