@@ -162,3 +162,40 @@ def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_exp
             mean, _, _ = model.actor.get_action_dist_params(obs)
             errors[weight] = float(((torch.tanh(mean) - torch.as_tensor(demos.actions)) ** 2).sum(dim=1).mean())
     assert errors[2.0] < 0.7 * errors[0.0]
+
+
+def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, tmp_path):
+    """algo.actor_average_tau: an exponential average of the actor, swapped in for evaluation."""
+    import torch
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
+    from cathsim_dmc.rl.train import build_sac, keep_if_best
+
+    demos = expert_transitions(env, episodes=1, seed=0)
+    algo = dict(learning_rate=1e-3, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
+                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
+                net_arch=[64, 64], share_features_extractor=False, critic_layer_norm=True, actor_average_tau=0.1)
+    model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None, dict(share=0.5, capacity=1000))
+    add_transitions(model.replay_buffer, demos)
+    model._setup_learn(1)
+
+    def flat():
+        return torch.cat([p.detach().flatten() for p in model.actor.parameters()]).clone()
+
+    model.train(gradient_steps=1, batch_size=64)
+    start = flat()  # the average starts from the actor after its first update
+    for _ in range(30):
+        model.train(gradient_steps=1, batch_size=64)
+    trained = flat()
+    with model.averaged_actor():
+        averaged = flat()
+        keep_if_best(model, tmp_path, step=31, success_rate=1.0, mean_return=0.0)
+    assert torch.equal(flat(), trained)  # restored after the block
+    # 30 updates at tau 0.1: the average has moved most of the way, not all of it.
+    moved = float(torch.linalg.norm(averaged - start) / torch.linalg.norm(trained - start))
+    assert 0.2 < moved < 0.95
+    saved = SAC.load(tmp_path / "checkpoints" / "best.zip", device="cpu")
+    saved_flat = torch.cat([p.detach().flatten() for p in saved.actor.parameters()])
+    torch.testing.assert_close(saved_flat, averaged)

@@ -14,6 +14,7 @@ itself (same reward, same observations), so their rewards are what the agent wou
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -244,13 +245,55 @@ class SACfD(SAC):
     the critic rates the expert's action above the actor's (the Q-filter of Nair et al.,
     2018): the agent imitates until it has found something the critic values more.
     With `bc_weight` 0 this is plain SAC.
+
+    With `actor_average_tau` > 0 it also keeps an exponential moving average of the
+    actor's weights (each update moves it `actor_average_tau` of the way to the current
+    actor: about 1/tau updates of memory), which `averaged_actor()` swaps in, e.g. for
+    deterministic evaluation: the averaged policy does not follow every swing of the
+    critic (weight averaging in RL: Nikishin et al., 2018).
     """
 
-    def __init__(self, *args, bc_weight: float = 0.0, **kwargs):
+    def __init__(self, *args, bc_weight: float = 0.0, actor_average_tau: float = 0.0, **kwargs):
         self.bc_weight = float(bc_weight)
+        if not 0.0 <= float(actor_average_tau) <= 1.0:
+            raise ValueError(f"actor_average_tau={actor_average_tau!r} must be within [0, 1] (0: no average)")
+        self.actor_average_tau = float(actor_average_tau)
+        self._actor_average = None  # name -> tensor, like actor.state_dict()
         super().__init__(*args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        self._train_steps(gradient_steps, batch_size)
+        self._update_actor_average(gradient_steps)
+
+    def _update_actor_average(self, gradient_steps: int) -> None:
+        if self.actor_average_tau <= 0:
+            return
+        current = self.actor.state_dict()
+        if self._actor_average is None:
+            self._actor_average = {k: v.detach().clone() for k, v in current.items()}
+            return
+        rate = 1.0 - (1.0 - self.actor_average_tau) ** gradient_steps
+        with torch.no_grad():
+            for key, value in current.items():
+                if value.dtype.is_floating_point:
+                    self._actor_average[key].lerp_(value, rate)
+                else:
+                    self._actor_average[key].copy_(value)
+
+    @contextmanager
+    def averaged_actor(self):
+        """Within the block the actor holds its averaged weights (unchanged without an average)."""
+        if self._actor_average is None:
+            yield self
+            return
+        current = {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
+        self.actor.load_state_dict(self._actor_average)
+        try:
+            yield self
+        finally:
+            self.actor.load_state_dict(current)
+
+    def _train_steps(self, gradient_steps: int, batch_size: int) -> None:
         buffer = self.replay_buffer
         n_demo = buffer.demo_batch_size(batch_size) if isinstance(buffer, DemoReplayBuffer) else 0
         if self.bc_weight <= 0 or n_demo == 0:

@@ -5,6 +5,7 @@ Used by ``cathsim-train`` (cathsim_dmc/cli/train.py); importable for scripts.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -149,7 +150,7 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
                                                     demo_capacity=int(demos["capacity"])))
     policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
     return SACfD(
-        policy, env, **with_demos,
+        policy, env, **with_demos, actor_average_tau=float(algo.get("actor_average_tau") or 0.0),
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
@@ -261,6 +262,14 @@ def _callbacks():
             self._last = self.num_timesteps
             if self.env is None:
                 self.env = self.make_env()
+            # The averaged actor (algo.actor_average_tau), when the model keeps one, is what
+            # is evaluated and what best.zip holds.
+            averaged = getattr(self.model, "averaged_actor", None)
+            with averaged() if averaged else contextlib.nullcontext():
+                self._evaluate()
+            return True
+
+        def _evaluate(self):
             returns, successes, lengths = [], [], []
             for episode in range(self.episodes):
                 obs, info = self.env.reset(seed=self.seed + episode)
@@ -287,7 +296,6 @@ def _callbacks():
                           "episodes": self.episodes, "wall_s": round(time.time() - self._start_wall, 1)}
                 with open(self.run_dir / EVALUATIONS, "a") as f:
                     f.write(json.dumps(record) + "\n")
-            return True
 
         def _on_training_end(self):
             if self.env is not None:
