@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath
+from cathsim_dmc.anatomy.paths import CenterlinePath, component_across, signed_angle_rad
 
 
 class CenterlineExpert:
@@ -117,11 +117,9 @@ class CenterlineExpert:
         # Aim: the bend (tip relative to the tip base, across the shaft) towards the
         # look-ahead point (relative to the tip base, across the shaft).
         # Near the target, aim at the target itself: the last look-ahead would overshoot.
-        aim_point = line.at(min(s + self.lookahead_radii * radius, line.length_m))
-        bend = _across(tip - base, shaft)
-        aim = _across(aim_point - base, shaft)
-        straight_ahead = np.linalg.norm(aim) < 0.25 * np.linalg.norm(aim_point - base)
-        angle = _signed_angle(bend, aim, shaft)
+        angle, off_axis = line.aim_error(tip, base, shaft, s, self.lookahead_radii * radius)
+        straight_ahead = off_axis < 0.25
+        bend = component_across(tip - base, shaft)
         rotation = np.clip(angle / self._max_rotation_step, -1.0, 1.0)
 
         if self._retreat_to is not None:
@@ -153,8 +151,8 @@ class CenterlineExpert:
         the target and back, so the tip slides across the target's cross-section. Every
         few strokes without success, retreat out of the branch and enter again.
         """
-        to_axis = -_across(tip - self._target, self._target_axis)
-        angle = _signed_angle(bend, _across(to_axis, shaft), shaft)
+        to_axis = -component_across(tip - self._target, self._target_axis)
+        angle = signed_angle_rad(bend, component_across(to_axis, shaft), shaft)
         rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
 
         radius = self._target_radius
@@ -168,14 +166,3 @@ class CenterlineExpert:
             return np.array([-1.0, rotation], dtype=np.float32)
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))
         return np.array([insertion, rotation], dtype=np.float32)
-
-
-def _signed_angle(a, b, axis) -> float:
-    """Angle from a to b about axis, in radians; 0 when either is degenerate."""
-    if np.linalg.norm(a) < 1e-9 or np.linalg.norm(b) < 1e-9:
-        return 0.0
-    return float(np.arctan2(np.dot(axis, np.cross(a, b)), np.dot(a, b)))
-
-
-def _across(v, axis):
-    return v - np.dot(v, axis) * axis

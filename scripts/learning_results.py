@@ -31,6 +31,8 @@ VARIANTS = {
     # The robot stops at the target's centerline length + 20 mm (task.insertion_limit_margin_m).
     "demos_limit_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
                               "task.insertion_limit_margin_m=0.02"], 20_000),
+    # Progress plus aim shaping (reward=aim): turning the bend towards the path is paid for.
+    "demos_aim_internal": (["obs=internal", "algo=sac_tuned", "reward=aim", *DEMOS], 20_000),
     "demos_bc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),

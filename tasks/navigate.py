@@ -27,6 +27,11 @@ SUCCESS_REWARD = 10.0
 # the right ostium; see `Navigate.reward_distance_m`).
 REWARDS = ("euclidean", "geodesic")
 EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position")
+# Aim shaping looks this many lumen radii ahead along the target's centerline (as the expert).
+AIM_LOOKAHEAD_RADII = 1.5
+# The aim counts fully once the next stretch is this far off the shaft's axis (the share of
+# the look-ahead across the shaft); straight ahead, the bend's direction does not matter.
+AIM_FULL_OFF_AXIS = 0.5
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
 
@@ -62,7 +67,11 @@ class Navigate(composer.Task):
     line; `progress_weight` adds that weight times the step's progress towards the target
     in units of one full-speed insertion step (potential-style shaping); and
     `insertion_limit_margin_m` stops the carriage at the centerline length from the entry
-    to the target plus this margin (None: the full stroke).
+    to the target plus this margin (None: the full stroke). `aim_weight` adds potential
+    shaping for turning the tip's bend towards where the target's centerline goes next
+    (the privileged expert's aim): the potential is -aim_weight x (angle from bend to
+    aim / pi), faded out where the path runs straight ahead, so aiming is paid for the
+    step it happens rather than only when the tip later moves.
 
     Access: the robot's introducer sheath goes in through the aorta's open lower end
     (`Aorta.access_position_m`), its seal plate closing that end, and its tip (the
@@ -94,6 +103,7 @@ class Navigate(composer.Task):
         blood_drag: bool = False,
         reward: str = "euclidean",
         progress_weight: float = 0.0,
+        aim_weight: float = 0.0,
         insertion_limit_margin_m: float | None = None,
         extra_observations: tuple = (),
     ):
@@ -115,6 +125,8 @@ class Navigate(composer.Task):
             raise ValueError(f"reward={reward!r}; choose one of {list(REWARDS)}")
         if not np.isfinite(progress_weight) or progress_weight < 0:
             raise ValueError(f"progress_weight={progress_weight!r} must be a finite number >= 0")
+        if not np.isfinite(aim_weight) or aim_weight < 0:
+            raise ValueError(f"aim_weight={aim_weight!r} must be a finite number >= 0")
         if insertion_limit_margin_m is not None and not insertion_limit_margin_m >= 0:
             raise ValueError(f"insertion_limit_margin_m={insertion_limit_margin_m!r} must be >= 0 (metres) or None")
         unknown = sorted(set(extra_observations) - set(EXTRA_OBSERVATIONS))
@@ -122,6 +134,7 @@ class Navigate(composer.Task):
             raise ValueError(f"extra_observations {unknown} unknown; choose from {list(EXTRA_OBSERVATIONS)}")
         self._reward_kind = reward
         self._progress_weight = float(progress_weight)
+        self._aim_weight = float(aim_weight)
         self._extra_observations = tuple(extra_observations)
         self._paths = CenterlineTree.from_asset(aorta.asset)
         self._insertion_limit_m = (None if insertion_limit_margin_m is None
@@ -154,6 +167,7 @@ class Navigate(composer.Task):
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
+        self._aim_potential = self._previous_aim_potential = 0.0
         self._start_progress_m = 0.0  # tip progress at the start minus the carriage's (set per episode)
         # The wire belongs in the lumen or in the guide channel and sheath, which end at
         # the outlet inside the lumen: no path outside the two is left. Anywhere else the
@@ -269,6 +283,7 @@ class Navigate(composer.Task):
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
         self._reward_distance_m = self.reward_distance_m(physics)
         self._previous_reward_distance_m = self._reward_distance_m
+        self._aim_potential = self._previous_aim_potential = self.aim_potential(physics)
         if isinstance(physics, cs_physics.ConstraintSensingPhysics):
             # NavigationEnvironment builds one; in another composer.Environment the
             # mean falls back to the end-of-step force.
@@ -294,6 +309,8 @@ class Navigate(composer.Task):
             self._success = self.target_distance_m(physics) <= self._delta_m
             self._previous_reward_distance_m = self._reward_distance_m
             self._reward_distance_m = self.reward_distance_m(physics)
+            self._previous_aim_potential = self._aim_potential
+            self._aim_potential = self.aim_potential(physics)
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -302,7 +319,10 @@ class Navigate(composer.Task):
     def get_reward(self, physics):
         if self._diverged or self._escaped:  # cut short: the step says nothing about the task
             return 0.0
-        return self.reward_for(self._previous_reward_distance_m, self._reward_distance_m, self._success)
+        reward = self.reward_for(self._previous_reward_distance_m, self._reward_distance_m, self._success)
+        if not self._success:
+            reward += self._aim_potential - self._previous_aim_potential
+        return reward
 
     def reward_for(self, previous_distance_m: float, distance_m: float, success: bool) -> float:
         """The reward of a step that took the tip from `previous_distance_m` to `distance_m`
@@ -372,6 +392,29 @@ class Navigate(composer.Task):
             return euclidean
         location = location or self._paths.locate(tip, prefer=self._target_name)
         return max(self._paths.geodesic_from_location(location, self._target_name), euclidean)
+
+    def aim_error(self, physics) -> tuple[float, float]:
+        """(angle from the tip's bend to the aim in radians, off-axis share of the aim):
+        `CenterlinePath.aim_error` on the target's centerline, looking
+        `AIM_LOOKAHEAD_RADII` lumen radii past the tip."""
+        line = self._paths.lines[self._target_name]
+        tip = self.tip_position_m(physics)
+        base = physics.bind(self._guidewire.tip_base_site)
+        s_m = line.locate(tip)[0]
+        return line.aim_error(tip, base.xpos, base.xmat.reshape(3, 3)[:, 2], s_m,
+                              AIM_LOOKAHEAD_RADII * line.radius_at(s_m))
+
+    @property
+    def aim_potential_weight(self) -> float:
+        """`aim_weight`: the aim shaping's weight (0: none)."""
+        return self._aim_weight
+
+    def aim_potential(self, physics) -> float:
+        """The aim shaping's potential (0 with `aim_weight` 0): see the class docstring."""
+        if not self._aim_weight:
+            return 0.0
+        angle, off_axis = self.aim_error(physics)
+        return -self._aim_weight * abs(angle) / np.pi * min(1.0, off_axis / AIM_FULL_OFF_AXIS)
 
     def slack_m(self, physics) -> float:
         """Carriage advance minus tip advance along the vessel since the start, metres.

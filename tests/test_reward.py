@@ -122,3 +122,42 @@ def test_slack_grows_when_the_tip_stalls_and_the_drive_pushes():
     assert infos[-1].slack_m > 0.05
     timestep = env.step([1.0, 0.0])
     assert timestep.observation["wire_slack"][0] == pytest.approx(env.task.slack_m(env.physics))
+
+
+def test_aim_error_of_a_bend_towards_and_away_from_a_turning_line():
+    from cathsim_dmc.anatomy.paths import CenterlinePath
+
+    # Up the z axis for 50 mm, then off along +x: a bend; the tip base sits at z = 40 mm.
+    line = CenterlinePath([[0, 0, 0], [0, 0, 0.05], [0.05, 0, 0.05]], 0.005)
+    base, shaft = np.array([0, 0, 0.04]), np.array([0, 0, 1.0])
+    towards, off_axis = line.aim_error(base + [0.002, 0, 0.005], base, shaft, 0.04, 0.02)
+    away, _ = line.aim_error(base + [-0.002, 0, 0.005], base, shaft, 0.04, 0.02)
+    quarter, _ = line.aim_error(base + [0, 0.002, 0.005], base, shaft, 0.04, 0.02)
+    assert towards == pytest.approx(0.0, abs=1e-9) and abs(away) == pytest.approx(np.pi)
+    assert abs(quarter) == pytest.approx(np.pi / 2)
+    assert off_axis == pytest.approx(10 / np.hypot(10, 10))  # aim 10 mm up and 10 mm across
+    # Low on the straight stretch the look-ahead lies straight ahead: nothing to aim.
+    assert line.aim_error(base - [0, 0, 0.03] + [0.002, 0, 0.005], base - [0, 0, 0.03], shaft, 0.01, 0.01)[1] < 1e-9
+
+
+def test_aim_shaping_pays_the_expert_for_turning_the_bend_before_it_advances():
+    from cathsim_dmc.policies import make_policy
+
+    env = tasks.load("bca", "type1", seed=0, reward="geodesic", aim_weight=2.0)
+    expert = make_policy("expert")
+    env.reset()
+    turning, total = [], []
+    for _ in range(120):
+        action = expert(None, env)
+        timestep = env.step(action)
+        if env.task.step_info(env.physics).success or timestep.last():
+            break
+        aim_term = timestep.reward + env.task._reward_distance_m  # the reward less its distance term
+        total.append(aim_term)
+        if action[0] == 0.0 and abs(action[1]) > 0.2:  # the expert aims before it advances
+            turning.append(aim_term)
+    assert len(turning) >= 3
+    assert sum(turning) > 0.3  # turning towards the aim is paid for the step it happens
+    assert abs(sum(total)) <= 2.0 + 1e-6  # a potential: the sum telescopes, bounded by the weight
+    with pytest.raises(ValueError, match="aim_weight"):
+        tasks.load("bca", "type1", aim_weight=float("nan"))

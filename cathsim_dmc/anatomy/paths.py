@@ -58,6 +58,23 @@ class CenterlinePath:
         s = float(np.clip(s_m, 0.0, self.arclength[-1]))
         return np.array([np.interp(s, self.arclength, self.points[:, k]) for k in range(3)])
 
+    def aim_error(self, tip_m, tip_base_m, shaft, s_m: float, lookahead_m: float) -> tuple[float, float]:
+        """How far an angled tip's bend is turned from where the line goes next.
+
+        The bend is the tip seen from the base of its curve, across the shaft (`shaft`: a
+        unit vector along the wire at the tip base); the aim is the line's point
+        `lookahead_m` past `s_m` (the site at most), seen the same way. Returns (signed
+        angle from bend to aim about the shaft in radians, off-axis share of the aim):
+        the share is the aim's component across the shaft over its length, near 0 when
+        the line runs straight ahead and the bend's direction does not matter.
+        """
+        tip, base, axis = (np.asarray(v, dtype=float) for v in (tip_m, tip_base_m, shaft))
+        aim_point = self.at(min(s_m + lookahead_m, self.length_m))
+        bend = component_across(tip - base, axis)
+        aim = component_across(aim_point - base, axis)
+        off_axis = float(np.linalg.norm(aim) / max(np.linalg.norm(aim_point - base), 1e-12))
+        return signed_angle_rad(bend, aim, axis), off_axis
+
     def radius_at(self, s_m: float) -> float:
         return float(np.interp(s_m, self.arclength, self.radius))
 
@@ -140,3 +157,15 @@ class CenterlineTree:
             else:
                 along = (s - junction) + (target_line.length_m - self.junction_arclength_m(target, name))
         return float(along + max(depth, 0.0))
+
+
+def signed_angle_rad(a, b, axis) -> float:
+    """Angle from a to b about axis, in radians; 0 when either is degenerate."""
+    if np.linalg.norm(a) < 1e-9 or np.linalg.norm(b) < 1e-9:
+        return 0.0
+    return float(np.arctan2(np.dot(axis, np.cross(a, b)), np.dot(a, b)))
+
+
+def component_across(v, axis):
+    """`v` without its component along the unit vector `axis`."""
+    return v - np.dot(v, axis) * axis

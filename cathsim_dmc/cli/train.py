@@ -42,7 +42,8 @@ def _task_kwargs(cfg, training: bool = False) -> dict:
     if params is not None:
         kwargs["aorta_params"] = OmegaConf.to_container(params)
     if training and cfg.get("reward") is not None:
-        kwargs.update(reward=cfg.reward.kind, progress_weight=float(cfg.reward.progress_weight))
+        kwargs.update(reward=cfg.reward.kind, progress_weight=float(cfg.reward.progress_weight),
+                      aim_weight=float(cfg.reward.get("aim_weight") or 0.0))
     return kwargs
 
 
