@@ -44,7 +44,8 @@ def validate(task: str, aorta: str, obs: str = "internal") -> None:
         raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
 
 
-def check_options(delta_m=None, max_steps=None, success_reward=None, **_others) -> None:
+def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
+                  progress_weight=None, **_others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `build_task` calls it before building anything; the command-line tools call it on
@@ -57,6 +58,10 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, **_others) 
         check_number("max_steps", max_steps, 1, whole=True)
     if success_reward is not None:
         check_number("success_reward", success_reward)
+    if insertion_limit_margin_m is not None:  # metres past the target's centerline length
+        check_number("insertion_limit_margin_m", insertion_limit_margin_m, 0.0)
+    if progress_weight is not None:
+        check_number("progress_weight", progress_weight, 0.0)
 
 
 def build_task(
