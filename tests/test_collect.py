@@ -66,6 +66,34 @@ def test_dataset_round_trip_and_resume(tmp_path):
     assert (out / "shard_00001.npz").is_file() and len(load_arrays([out], ("action",))["action"]) == 12
 
 
+def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
+    # As cathsim-eval evaluates it: an agent trained with an insertion limit and an extra
+    # observation drives with both (it cannot act at all without the observation).
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.rl.train import build_sac, make_env_fn, write_policy_file
+
+    trained_with = {"insertion_limit_margin_m": 0.01, "extra_observations": ["wire_slack"]}
+    env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 3, **trained_with})])
+    algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,
+                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
+                net_arch=[16], share_features_extractor=False)
+    model = build_sac(env, algo, 0, "cpu", None)
+    env.close()
+    agent = tmp_path / "agent"
+    agent.mkdir()
+    model.save(agent / "final_model.zip")
+    write_policy_file(agent, "internal", "bca", "type1", env_options=trained_with)
+
+    manifest = collect(tmp_path / "data", "bca", "type1", str(agent), episodes=1, episodes_per_shard=1, seed=0,
+                       task_options={"max_steps": 3}, show_progress=False)
+    assert manifest["task_options"] == {"max_steps": 3, **trained_with} and manifest["samples"] == 3
+    # A second run into the folder continues it: the options compare equal after the JSON round trip.
+    again = collect(tmp_path / "data", "bca", "type1", str(agent), episodes=1, episodes_per_shard=1, seed=0,
+                    task_options={"max_steps": 3}, show_progress=False)
+    assert again["samples"] == 3
+
+
 def test_enn_agent_records_its_features(tmp_path):
     from stable_baselines3.common.vec_env import DummyVecEnv
 

@@ -56,6 +56,7 @@ def run(cfg) -> dict:
     if bc_cfg.frames < 1:
         raise ValueError(f"bc.frames={bc_cfg.frames} must be at least 1 (1: the paper's single image)")
     eval_episodes = check_number("eval_episodes", cfg.eval_episodes, 0, whole=True)
+    eval_seed = check_number("eval_seed", cfg.eval_seed, 0, whole=True)
     kwargs = env_kwargs(cfg)
     paths = dataset_paths(cfg.data)
     manifests = dataset_manifests(paths)
@@ -102,8 +103,8 @@ def run(cfg) -> dict:
                               images_opts)
     env = CathSimEnv(**env_kwargs(cfg, policy=policy))
     try:
-        report = evaluate_policy(env, policy, f"bc-{image_key}", eval_episodes, check_number("eval_seed", cfg.eval_seed, 0, whole=True),
-                                 run_dir / "eval", video=cfg.video, show_progress=cfg.progress_bar)
+        report = evaluate_policy(env, policy, f"bc-{image_key}", eval_episodes, eval_seed, run_dir / "eval",
+                                 video=cfg.video, show_progress=cfg.progress_bar)
     finally:
         env.close()
     print((run_dir / "eval" / METRICS_MD).read_text(), end="")
