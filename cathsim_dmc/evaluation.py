@@ -1,9 +1,9 @@
 """Rollouts, reports and videos: the one place every tool evaluates a policy through.
 
 cathsim-eval, cathsim-train (its final report and its periodic evaluation),
-cathsim-collect, cathsim-bc and cathsim-teleop all roll out with `run_episodes` and
-write the same report (`write_report`: metrics.json, metrics.md, path.png, forces.png),
-so their numbers are comparable. A policy is a function (observation, env) -> action
+cathsim-collect and cathsim-bc roll out with `run_episodes`; they and cathsim-teleop
+(a person's episodes) write the same report (`write_report`: metrics.json, metrics.md,
+path.png, forces.png), so their numbers are comparable. A policy is a function (observation, env) -> action
 (`cathsim_dmc.policies`).
 """
 

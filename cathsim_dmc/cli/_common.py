@@ -96,6 +96,7 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc import tasks
+    from cathsim_dmc.policies import CheckpointPolicy
 
     task = cfg.task
     kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,
@@ -113,8 +114,6 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
             kwargs["extra_observations"] = tuple(obs.extra)
     if training and cfg.get("reward") is not None:
         kwargs.update(reward=cfg.reward.kind, progress_weight=cfg.reward.progress_weight)
-    from cathsim_dmc.policies import CheckpointPolicy
-
     if isinstance(policy, CheckpointPolicy):  # a trained agent sees and drives what it was trained with
         kwargs.update(obs=policy.obs_preset, **policy.image_options, **policy.env_options)
     tasks.check_options(**{k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs")})
