@@ -10,6 +10,6 @@ _gl.select_backend()
 
 __version__ = "0.1.0"
 
-from cathsim_dmc import gym as _gym  # noqa: E402  (registers the Gymnasium ids)
+from cathsim_dmc import registry as _registry  # noqa: E402  (names only: no dm_control, no MuJoCo)
 
-_gym.register_all()
+_registry.register_all()

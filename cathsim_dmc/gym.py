@@ -15,12 +15,9 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
+from cathsim_dmc.registry import ENV_ID_FORMAT, env_id, register_all  # noqa: F401  (the ids' home)
+
 IMAGE_KEYS = ("pixels", "guidewire_mask")
-
-
-def env_id(task: str, aorta: str) -> str:
-    return ENV_ID_FORMAT.format(task=task, aorta=aorta)
 
 
 class CathSimEnv(gymnasium.Env):
@@ -41,7 +38,7 @@ class CathSimEnv(gymnasium.Env):
         self.task_name, self.aorta_name, self.obs_preset = task, aorta, obs
         self.observation_space = spaces.Dict(
             {key: _space(key, spec) for key, spec in self._env.observation_spec().items()})
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self.action_space = _action_space(self._env.action_spec())
         self._needs_reset = True
 
     @property
@@ -110,20 +107,17 @@ class CathSimEnv(gymnasium.Env):
         return info
 
 
+def _action_space(spec):
+    """The Box of a dm_env BoundedArray action spec: the task owns its action's bounds."""
+    shape = tuple(spec.shape)
+    low = np.broadcast_to(spec.minimum, shape).astype(spec.dtype)
+    high = np.broadcast_to(spec.maximum, shape).astype(spec.dtype)
+    return spaces.Box(low, high, shape=shape, dtype=spec.dtype)
+
+
 def _space(key, spec):
     if key in IMAGE_KEYS:
         h, w, c = spec.shape
         return spaces.Box(0, 255, shape=(c, h, w), dtype=np.uint8)
     shape = spec.shape if spec.shape else (1,)
     return spaces.Box(-np.inf, np.inf, shape=shape, dtype=np.float32)
-
-
-def register_all() -> None:
-    """Register an id for every pair in the suite (idempotent)."""
-    from cathsim_dmc.tasks import ALL_TASKS
-
-    for task, aorta in ALL_TASKS:
-        name = env_id(task, aorta)
-        if name not in gymnasium.registry:
-            gymnasium.register(id=name, entry_point="cathsim_dmc.gym:CathSimEnv",
-                               kwargs={"task": task, "aorta": aorta})

@@ -15,6 +15,7 @@ from dm_control.composer.observation import observable
 from dm_control.mujoco.wrapper.core import MjvOption
 
 from cathsim_dmc import _gl, geom_groups, raster
+from cathsim_dmc.checks import check_number
 
 TOP_CAMERA = "top"
 IMAGE_SIZE = 80  # the paper's 80x80 observation
@@ -64,6 +65,7 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
     settings = OBSERVATION_PRESETS[preset]
     if overrides:
         settings = ObservationSettings(**{**settings.__dict__, **overrides})
+    check_number("image_size", settings.image_size, 1, whole=True)  # 0 divides by zero in the renderer
     if settings.style not in IMAGE_STYLES:
         raise ValueError(f"image style={settings.style!r}; choose one of {IMAGE_STYLES}")
     if settings.renderer not in RENDERERS:

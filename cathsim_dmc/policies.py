@@ -13,22 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-POLICY_FILE = "policy.json"  # next to a checkpoint: what it needs to be evaluated
-NORMALIZER_SUFFIX = ".vecnormalize.pkl"  # <checkpoint>.vecnormalize.pkl: its observation normaliser
-
-
-def normalizer_path(checkpoint) -> Path:
-    """Where the observation normaliser of `checkpoint` (a .zip) is kept: beside it."""
-    checkpoint = Path(checkpoint)
-    return checkpoint.with_name(checkpoint.stem + NORMALIZER_SUFFIX)
-
-
-def load_normalizer(path):
-    """A saved SB3 VecNormalize (observation statistics), frozen for evaluation."""
-    with open(path, "rb") as f:
-        normalizer = pickle.load(f)
-    normalizer.training = False
-    return normalizer
+from cathsim_dmc.run_files import POLICY_FILE, load_normalizer, normalizer_path  # noqa: F401  (public here too)
 
 
 class ForwardPolicy:

@@ -14,6 +14,15 @@ def test_every_pair_is_registered():
         assert env_id(task, aorta) in gymnasium.registry
 
 
+def test_action_space_is_the_tasks_action_spec():
+    env = CathSimEnv("bca", "type1")
+    spec = env.dm_env.action_spec()
+    assert env.action_space.shape == spec.shape and env.action_space.dtype == spec.dtype
+    np.testing.assert_array_equal(env.action_space.low, np.broadcast_to(spec.minimum, spec.shape))
+    np.testing.assert_array_equal(env.action_space.high, np.broadcast_to(spec.maximum, spec.shape))
+    env.close()
+
+
 @pytest.mark.parametrize("obs", ["internal", "enn"])
 def test_gymnasium_env_checker(obs):
     from gymnasium.utils.env_checker import check_env

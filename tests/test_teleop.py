@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from cathsim_dmc.cli.eval import METRICS_JSON, write_report
+from cathsim_dmc.evaluation import METRICS_JSON, write_report
 from cathsim_dmc.teleop import (KEY_DOWN, KEY_LEFT, KEY_Q, KEY_R, KEY_RIGHT, KEY_SPACE, KEY_UP, QUIT, RESET,
                                 TeleopSession, TeleopState, handle_key)
 from cathsim_dmc.trajectory import TrajectoryRecorder, load_trajectories

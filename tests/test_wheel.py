@@ -7,8 +7,10 @@ import sys
 
 def test_wheel_installs_and_loads_a_task(tmp_path, repo_root):
     dist = tmp_path / "dist"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(dist),
-                    str(repo_root)], check=True, capture_output=True, timeout=600)
+    # -v shows the build backend's own output, where setuptools prints its packaging warnings.
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w",
+                            str(dist), str(repo_root)], check=True, capture_output=True, text=True, timeout=600)
+    assert "would be ignored" not in built.stdout + built.stderr, "a data folder is missing from pyproject's packages"
     wheel = next(dist.glob("cathsim_dmc-*.whl"))
     # Install the wheel alone into its own folder; its dependencies come from this
     # environment. That folder is first on the path, so every module below must come

@@ -64,3 +64,58 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
     guarded.__module__ = getattr(task_function, "__module__", __name__)
     app = hydra.main(version_base="1.3", config_path=str(conf_root()), config_name=config_name)(guarded)
     return app()
+
+
+def explicit_override(key: str) -> bool:
+    """Whether the command line set `key` (not only the config's default)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return any(o.lstrip("+~").split("=", 1)[0] == key for o in HydraConfig.get().overrides.task)
+
+
+# Options that change what an agent sees or drives. A checkpoint records them (policy.json)
+# and is evaluated, and replayed for datasets, with them whatever the command line says.
+IMAGE_OPTIONS = ("renderer", "style")
+AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations")
+
+
+def pick(options: Mapping, keys: Sequence[str]) -> dict:
+    return {key: options[key] for key in keys if key in options}
+
+
+def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
+    """`CathSimEnv(**...)` / `tasks.load(**...)` arguments from a tool's Hydra config.
+
+    Reads the `task` group (target, success radius and reward, time limit, insertion
+    limit), `aorta` (name, generator parameters), `obs` (preset, renderer, style, extra
+    observations) and, with `training`, the training reward (`reward` group): evaluation
+    always scores the paper's task. With `policy` a CheckpointPolicy, its observation
+    preset and the options it was trained with win. The task's values are checked here,
+    so that a bad one fails before any work (`tasks.check_options`).
+    """
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc import tasks
+    from cathsim_dmc.policies import CheckpointPolicy
+
+    task = cfg.task
+    kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,
+                  dense=task.dense, max_steps=task.max_steps)
+    if task.get("insertion_limit_margin_m") is not None:
+        kwargs["insertion_limit_margin_m"] = task.insertion_limit_margin_m
+    params = cfg.aorta.get("params")
+    if params is not None:
+        kwargs["aorta_params"] = OmegaConf.to_container(params, resolve=True)
+    obs = cfg.get("obs")
+    if obs is not None:
+        kwargs["obs"] = obs.name
+        kwargs.update({key: obs[key] for key in IMAGE_OPTIONS if obs.get(key) is not None})
+        if obs.get("extra"):
+            kwargs["extra_observations"] = tuple(obs.extra)
+    if training and cfg.get("reward") is not None:
+        kwargs.update(reward=cfg.reward.kind, progress_weight=cfg.reward.progress_weight,
+                      aim_weight=cfg.reward.get("aim_weight") or 0.0)
+    if isinstance(policy, CheckpointPolicy):  # a trained agent sees and drives what it was trained with
+        kwargs.update(obs=policy.obs_preset, **policy.image_options, **policy.env_options)
+    tasks.check_options(**{k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs")})
+    return kwargs

@@ -27,9 +27,9 @@ def dataset_paths(data) -> list:
 
 
 def dataset_manifests(paths) -> list:
-    from cathsim_dmc.rl.collect import MANIFEST
+    from cathsim_dmc.rl.data import MANIFEST, read_manifest
 
-    return [json.loads((Path(p) / MANIFEST).read_text()) for p in paths if (Path(p) / MANIFEST).is_file()]
+    return [read_manifest(Path(p) / MANIFEST) for p in paths if (Path(p) / MANIFEST).is_file()]
 
 
 def run(cfg) -> dict:
@@ -38,8 +38,9 @@ def run(cfg) -> dict:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
-    from cathsim_dmc.cli.collect import task_options
-    from cathsim_dmc.cli.eval import evaluate_policy, image_options
+    from cathsim_dmc.checks import check_number
+    from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
+    from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy
     from cathsim_dmc.rl.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
@@ -49,14 +50,17 @@ def run(cfg) -> dict:
     if image_key not in PRESET_FOR_IMAGE:
         raise ValueError(f"bc.image_key={image_key!r}; choose one of {sorted(PRESET_FOR_IMAGE)}")
     options = {k: v for k, v in OmegaConf.to_container(cfg.bc).items() if k != "image_key"}
-    bc_cfg = BCConfig(**options, seed=int(cfg.seed))
+    bc_cfg = BCConfig(**options, seed=check_number("seed", cfg.seed, 0, whole=True))
     if bc_cfg.epochs < 1 or bc_cfg.batch_size < 1:
         raise ValueError(f"bc.epochs={bc_cfg.epochs} and bc.batch_size={bc_cfg.batch_size} must be at least 1")
     if bc_cfg.frames < 1:
         raise ValueError(f"bc.frames={bc_cfg.frames} must be at least 1 (1: the paper's single image)")
+    eval_episodes = check_number("eval_episodes", cfg.eval_episodes, 0, whole=True)
+    eval_seed = check_number("eval_seed", cfg.eval_seed, 0, whole=True)
+    kwargs = env_kwargs(cfg)
     paths = dataset_paths(cfg.data)
     manifests = dataset_manifests(paths)
-    images_opts = {**image_options(cfg.obs), **(manifests[0]["image_options"] if manifests else {})}
+    images_opts = {**pick(kwargs, IMAGE_OPTIONS), **(manifests[0]["image_options"] if manifests else {})}
     for m in manifests:
         if (m["task"], m["aorta"]) != (cfg.task.target, cfg.aorta.name):
             log.warning("data was collected on %s/%s; the student is evaluated on %s/%s",
@@ -93,19 +97,18 @@ def run(cfg) -> dict:
     save_bc(result.net, run_dir, image_key, images_opts,
             {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths}, frames=bc_cfg.frames)
 
-    if cfg.eval_episodes <= 0:
+    if eval_episodes == 0:
         return {"history": result.history}
     policy = CheckpointPolicy(BCPolicyModel(result.net, image_key, bc_cfg.frames), PRESET_FOR_IMAGE[image_key],
                               images_opts)
-    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs=policy.obs_preset, **images_opts,
-                     **task_options(cfg))
+    env = CathSimEnv(**env_kwargs(cfg, policy=policy))
     try:
-        report = evaluate_policy(env, policy, f"bc-{image_key}", cfg.eval_episodes, int(cfg.eval_seed),
-                                 run_dir / "eval", video=cfg.video, show_progress=cfg.progress_bar)
+        report = evaluate_policy(env, policy, f"bc-{image_key}", eval_episodes, eval_seed, run_dir / "eval",
+                                 video=cfg.video, show_progress=cfg.progress_bar)
     finally:
         env.close()
-    print((run_dir / "eval" / "metrics.md").read_text(), end="")
-    print(f"success {report['summary']['success_pct']['mean']:.0f}% over {cfg.eval_episodes} episodes; "
+    print((run_dir / "eval" / METRICS_MD).read_text(), end="")
+    print(f"success {report['summary']['success_pct']['mean']:.0f}% over {eval_episodes} episodes; "
           f"run folder: {run_dir}")
     return report
 

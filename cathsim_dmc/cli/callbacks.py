@@ -9,7 +9,7 @@ class CombineMetrics(Callback):
     """After a multirun, write one metrics table (metrics.md, metrics.json) for all its jobs."""
 
     def on_multirun_end(self, config, **kwargs) -> None:
-        from cathsim_dmc.cli.eval import combine_reports
+        from cathsim_dmc.evaluation import combine_reports
 
         table = combine_reports(config.hydra.sweep.dir)
         if table:

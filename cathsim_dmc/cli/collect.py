@@ -16,27 +16,25 @@ from pathlib import Path
 log = logging.getLogger("cathsim-collect")
 
 
-def task_options(cfg) -> dict:
-    from omegaconf import OmegaConf
-
-    options = dict(delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward, dense=cfg.task.dense,
-                   max_steps=cfg.task.max_steps)
-    params = cfg.aorta.get("params")
-    if params is not None:
-        options["aorta_params"] = OmegaConf.to_container(params, resolve=True)
-    return options
-
-
 def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
-    from cathsim_dmc.cli.eval import image_options
+    from cathsim_dmc.checks import check_number
+    from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.rl.collect import collect
 
+    kwargs = env_kwargs(cfg)
+    # The dataset always records every modality (rl/collect.py); the obs group gives the
+    # image options, and a trained policy's own options win inside `collect`.
+    images = pick(kwargs, IMAGE_OPTIONS)
+    options = {k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs", *IMAGE_OPTIONS)}
     out = Path(str(cfg.out)) if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
-    manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy), int(cfg.episodes),
-                       int(cfg.episodes_per_shard), int(cfg.seed), task_options(cfg), image_options(cfg.obs),
-                       show_progress=cfg.progress_bar, action_noise_std=float(cfg.action_noise_std))
+    manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy),
+                       check_number("episodes", cfg.episodes, 1, whole=True),
+                       check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
+                       check_number("seed", cfg.seed, 0, whole=True), options, images,
+                       show_progress=cfg.progress_bar,
+                       action_noise_std=check_number("action_noise_std", cfg.action_noise_std, 0.0))
     print(f"{manifest['episodes']} episodes, {manifest['samples']} samples, "
           f"{manifest['successes']} reached the target; dataset in {out}")
     return manifest

@@ -13,17 +13,16 @@ from pathlib import Path
 
 
 def export(cfg) -> Path:
-    from omegaconf import OmegaConf
-
     from cathsim_dmc import tasks
+    from cathsim_dmc.checks import check_number
+    from cathsim_dmc.cli._common import env_kwargs
     from cathsim_dmc.export import SCENE_FILE, export_scene
 
     out = Path(str(cfg.out))
     if (out / SCENE_FILE).exists() and not cfg.overwrite:
         raise ValueError(f"{out / SCENE_FILE} exists; pass overwrite=true to replace it")
-    params = cfg.aorta.get("params")
-    extra = {"aorta_params": OmegaConf.to_container(params)} if params is not None else {}
-    env = tasks.load(cfg.task.target, cfg.aorta.name, seed=cfg.seed, **extra)
+    seed = check_number("seed", cfg.seed, 0, whole=True)
+    env = tasks.load(**env_kwargs(cfg), seed=seed)
     try:
         env.reset()
         scene = export_scene(env, out)

@@ -30,22 +30,21 @@ def teleop(cfg) -> dict | None:
     import mujoco
     import mujoco.viewer
     from hydra.core.hydra_config import HydraConfig
-    from omegaconf import OmegaConf
 
-    from cathsim_dmc.cli.eval import METRICS_MD, write_report
+    from cathsim_dmc.checks import check_number
+    from cathsim_dmc.cli._common import env_kwargs
+    from cathsim_dmc.evaluation import METRICS_MD, write_report
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.teleop import HELP, TeleopSession
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
-    if cfg.speed <= 0:
-        raise ValueError(f"speed={cfg.speed} must be positive (1 = real time)")
+    check_number("speed", cfg.speed, 0.0, inclusive=False)  # 1 = real time
+    seed = check_number("seed", cfg.seed, 0, whole=True)
+    kwargs = env_kwargs(cfg)  # teleop has no obs group: the person watches the viewer
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    params = cfg.aorta.get("params")
-    extra = {"aorta_params": OmegaConf.to_container(params)} if params is not None else {}
-    env = CathSimEnv(task=cfg.task.target, aorta=cfg.aorta.name, obs="internal", **extra, delta_m=cfg.task.delta_m,
-                     success_reward=cfg.task.success_reward, dense=cfg.task.dense, max_steps=cfg.task.max_steps)
+    env = CathSimEnv(**kwargs)
     recorder = TrajectoryRecorder(env.task.target_name, env.aorta_name, env.task.target_position_m, policy="human")
-    session = TeleopSession(env, recorder, seed=cfg.seed)
+    session = TeleopSession(env, recorder, seed=seed)
     physics = env.physics
     period_s = env.dm_env.control_timestep() / cfg.speed
     keys: queue.SimpleQueue = queue.SimpleQueue()

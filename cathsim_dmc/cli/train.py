@@ -7,7 +7,7 @@
 
 The run folder gets: config.yaml (resolved), policy.json, tensorboard/, checkpoints/
 (step_<n>.zip, last.zip), final_model.zip and eval/ (metrics.md, metrics.json, path.png,
-forces.png, trajectories.npz, video) from cathsim-eval's code.
+forces.png, trajectories.npz, video) from cathsim_dmc.evaluation, as cathsim-eval writes them.
 """
 
 from __future__ import annotations
@@ -18,43 +18,16 @@ from pathlib import Path
 log = logging.getLogger("cathsim-train")
 
 
-def _env_options(cfg) -> dict:
-    """Options that change what the agent sees or drives: the same in training and evaluation."""
-    options = {}
-    if cfg.task.get("insertion_limit_margin_m") is not None:
-        options["insertion_limit_margin_m"] = float(cfg.task.insertion_limit_margin_m)
-    extra = cfg.obs.get("extra")
-    if extra:
-        options["extra_observations"] = tuple(extra)
-    return options
-
-
-def _task_kwargs(cfg, training: bool = False) -> dict:
-    """tasks.load keyword arguments. The training reward (`reward=`) is used only with
-    `training`: evaluation always scores the paper's task."""
-    from omegaconf import OmegaConf
-
-    from cathsim_dmc.cli.eval import image_options
-
-    kwargs = dict(delta_m=cfg.task.delta_m, success_reward=cfg.task.success_reward, dense=cfg.task.dense,
-                  max_steps=cfg.task.max_steps, **image_options(cfg.obs), **_env_options(cfg))
-    params = cfg.aorta.get("params")
-    if params is not None:
-        kwargs["aorta_params"] = OmegaConf.to_container(params)
-    if training and cfg.get("reward") is not None:
-        kwargs.update(reward=cfg.reward.kind, progress_weight=float(cfg.reward.progress_weight),
-                      aim_weight=float(cfg.reward.get("aim_weight") or 0.0))
-    return kwargs
-
-
 def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.cli.eval import evaluate_policy, image_options
+    from cathsim_dmc.checks import check_number
+    from cathsim_dmc.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
+    from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy, load_checkpoint_policy
-    from cathsim_dmc.rl.train import BEST_MODEL, CHECKPOINT_DIR, best_record, make_vec_env, train
+    from cathsim_dmc.rl.train import BEST_MODEL, CHECKPOINT_DIR, best_record, check_training, make_vec_env, train
 
     resume = cfg.get("resume")
     if resume:
@@ -67,28 +40,28 @@ def run(cfg) -> dict:
         if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
             original.trainer.total_timesteps = cfg.trainer.total_timesteps
         cfg = original
-    else:
+
+    # Every setting is checked before the run folder, an environment or a model exists.
+    seed = check_number("seed", cfg.seed, 0, whole=True)
+    algo = OmegaConf.to_container(cfg.algo, resolve=True)
+    trainer = OmegaConf.to_container(cfg.trainer, resolve=True)
+    check_training(algo, trainer)
+    train_kwargs, eval_kwargs = env_kwargs(cfg, training=True), env_kwargs(cfg)
+    agent_options = pick(eval_kwargs, AGENT_OPTIONS)
+    image_options = pick(eval_kwargs, IMAGE_OPTIONS)
+    demos = OmegaConf.to_container(cfg.demos, resolve=True) if cfg.get("demos") is not None else None
+    task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
+    if not resume:
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    if cfg.trainer.n_envs < 1:
-        raise ValueError(f"trainer.n_envs={cfg.trainer.n_envs} must be at least 1")
-    device = cfg.trainer.device
-    if device not in ("auto", "cpu", "cuda") and not str(device).startswith("cuda:"):
-        raise ValueError(f"trainer.device={device!r}; choose one of ['auto', 'cpu', 'cuda']")
 
-    algo = OmegaConf.to_container(cfg.algo, resolve=True)
-    trainer = OmegaConf.to_container(cfg.trainer, resolve=True)
-    demos = OmegaConf.to_container(cfg.demos, resolve=True) if cfg.get("demos") is not None else None
-    task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
-    train_kwargs, eval_kwargs = _task_kwargs(cfg, training=True), _task_kwargs(cfg)
-    env = make_vec_env(task, aorta, obs, cfg.seed, cfg.trainer.n_envs, train_kwargs)
+    vec_kwargs = {k: v for k, v in train_kwargs.items() if k not in ("task", "aorta", "obs")}
+    env = make_vec_env(task, aorta, obs, seed, cfg.trainer.n_envs, vec_kwargs)
     try:
-        result = train(env, run_dir, algo, trainer, cfg.seed, obs, task, aorta, resume=bool(resume),
-                       make_eval_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **eval_kwargs),
-                       image_options=image_options(cfg.obs), demos=demos,
-                       make_demo_env=lambda: CathSimEnv(task=task, aorta=aorta, obs=obs, **train_kwargs),
-                       env_options=_env_options(cfg))
+        result = train(env, run_dir, algo, trainer, seed, obs, task, aorta, resume=bool(resume),
+                       make_eval_env=lambda: CathSimEnv(**eval_kwargs), image_options=image_options, demos=demos,
+                       make_demo_env=lambda: CathSimEnv(**train_kwargs), env_options=agent_options)
     finally:
         env.close()
     log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
@@ -104,16 +77,16 @@ def run(cfg) -> dict:
         normalizer = result.model.get_vec_normalize_env()
         if normalizer is not None:
             normalizer.training = False
-        policy = CheckpointPolicy(result.model, obs, image_options(cfg.obs), _env_options(cfg), normalizer)
-    eval_env = CathSimEnv(task=task, aorta=aorta, obs=obs, **eval_kwargs)
+        policy = CheckpointPolicy(result.model, obs, image_options, agent_options, normalizer)
+    eval_env = CathSimEnv(**eval_kwargs)
     try:
         report = evaluate_policy(eval_env, policy, f"sac-{obs}",
                                  cfg.trainer.get("final_eval_episodes") or cfg.trainer.eval_episodes,
-                                 seed=10_000 + cfg.seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
-                                 label={"seed": int(cfg.seed)})
+                                 seed=10_000 + seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
+                                 label={"seed": seed})
     finally:
         eval_env.close()
-    print((run_dir / "eval" / "metrics.md").read_text(), end="")
+    print((run_dir / "eval" / METRICS_MD).read_text(), end="")
     print(f"run folder: {run_dir}")
     return report
 

@@ -25,6 +25,7 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
+from cathsim_dmc.checks import check_number
 from cathsim_dmc.observables import JointObservables
 
 TIP_SHAPES = ("straight", "angled", "j")
@@ -118,6 +119,11 @@ class Guidewire(composer.Entity):
         """
         if tip_shape not in TIP_SHAPES:
             raise ValueError(f"tip_shape={tip_shape!r} is not one of {TIP_SHAPES}")
+        # A non-positive modulus or density compiles, and fails only at the first physics step.
+        for key, value in (("length_m", length_m), ("diameter_m", diameter_m),
+                           ("youngs_modulus_pa", youngs_modulus_pa), ("tip_youngs_modulus_pa", tip_youngs_modulus_pa),
+                           ("density_kg_m3", density_kg_m3), ("physics_timestep_s", physics_timestep_s)):
+            check_number(f"Guidewire {key}", value, 0.0, inclusive=False)
         if not 0 < tip_length_m < length_m:
             raise ValueError(f"tip_length_m={tip_length_m} must lie in (0, length_m={length_m})")
         if n_segments < 2 or n_tip_segments < 1:

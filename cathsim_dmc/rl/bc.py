@@ -162,7 +162,7 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
 def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None = None, extra: dict | None = None,
            frames: int = 1) -> Path:
     """bc_policy.pt (weights + shape) and policy.json (how to evaluate it); atomic writes."""
-    from cathsim_dmc.policies import POLICY_FILE
+    from cathsim_dmc.run_files import POLICY_FILE
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -25,11 +25,11 @@ from typing import Callable
 
 import numpy as np
 
+from cathsim_dmc.rl.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder
 
 log = logging.getLogger("cathsim-collect")
 
-MANIFEST = "manifest.json"
 SHARD_FORMAT = "shard_{:05d}.npz"
 COLLECT_OBS = "enn"  # every modality: the image, the mask and the joint state
 # Settings that must match when a run continues an existing dataset (the episode count
@@ -114,20 +114,21 @@ def enn_feature_fn(model, observation_keys):
 
 
 def collection_policy(name: str, seed: int):
-    """(policy, feature_fn or None, label, image options) for a built-in name or a checkpoint."""
+    """(policy, feature_fn or None, label, image options, env options) for a built-in name or
+    a checkpoint; a checkpoint's image and env options are the ones it was trained with."""
     from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.policies import CheckpointPolicy, make_policy
 
     policy = make_policy(name, seed=seed)
     if not isinstance(policy, CheckpointPolicy):
-        return policy, None, name, {}
+        return policy, None, name, {}, {}
     # The dataset records every modality; the agent sees only what it was trained on.
-    keys = sorted(OBSERVATION_PRESETS[policy.obs_preset].enabled)
+    keys = sorted(OBSERVATION_PRESETS[policy.obs_preset].enabled | set(policy.env_options.get("extra_observations", ())))
 
     def act(observation, env):
         return policy({k: observation[k] for k in keys}, env)
 
-    return act, enn_feature_fn(policy.model, keys), Path(name).name, policy.image_options
+    return act, enn_feature_fn(policy.model, keys), Path(name).name, policy.image_options, policy.env_options
 
 
 def shard_info(path) -> dict | None:
@@ -166,7 +167,7 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     """
     from tqdm import tqdm
 
-    from cathsim_dmc.cli.eval import run_episodes
+    from cathsim_dmc.evaluation import run_episodes
     from cathsim_dmc.gym import CathSimEnv
 
     if episodes < 1:
@@ -176,16 +177,22 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     if not action_noise_std >= 0:
         raise ValueError(f"action_noise_std={action_noise_std} must be >= 0")
     out_dir = Path(out_dir)
-    act, feature_fn, label, policy_images = collection_policy(policy, seed)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"out={str(out_dir)!r} is a file; name a dataset folder (new, or one to continue)")
+    act, feature_fn, label, policy_images, policy_options = collection_policy(policy, seed)
     images = {**(image_options or {}), **policy_images}
+    # A trained agent drives with what it was trained with (insertion limit, extra
+    # observations), as cathsim-eval evaluates it.
+    task_options = {**(task_options or {}), **policy_options}
     settings = {"task": task, "aorta": aorta, "policy": label, "seed": seed, "episodes_per_shard": episodes_per_shard,
-                "obs": COLLECT_OBS, "image_options": images, "task_options": dict(task_options or {}),
+                "obs": COLLECT_OBS, "image_options": images, "task_options": task_options,
                 "feature_z": feature_fn is not None, "action_noise_std": float(action_noise_std)}
     manifest_path = out_dir / MANIFEST
     if manifest_path.is_file():
-        old = json.loads(manifest_path.read_text())
+        old = read_manifest(manifest_path)
         for key in _SAME_ON_RESUME:
-            if old.get(key, _RESUME_DEFAULTS.get(key)) != settings[key]:
+            # Compared as JSON holds them (a tuple of extra observations reads back as a list).
+            if old.get(key, _RESUME_DEFAULTS.get(key)) != json.loads(json.dumps(settings[key])):
                 raise ValueError(f"{out_dir} holds a dataset collected with {key}={old.get(key)!r}, not "
                                  f"{settings[key]!r}; continue it with the same settings or choose another out folder")
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -201,7 +208,7 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
         log.info("all %d episodes already collected in %s", episodes, out_dir)
         return manifest
 
-    env = CathSimEnv(task=task, aorta=aorta, obs=COLLECT_OBS, **images, **(task_options or {}))
+    env = CathSimEnv(task=task, aorta=aorta, obs=COLLECT_OBS, **images, **task_options)
     bar = tqdm(total=episodes, initial=sum(d["episodes"] for d in done.values()), unit="episode",
                desc="collecting", disable=not show_progress)
     try:

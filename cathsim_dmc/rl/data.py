@@ -24,6 +24,8 @@ import numpy as np
 
 from cathsim_dmc.trajectory import SCHEMA_VERSION
 
+MANIFEST = "manifest.json"  # a cathsim-collect dataset's description (rl/collect.py)
+
 SHARD_GLOB = "shard_*.npz"
 
 
@@ -48,13 +50,23 @@ def expand_paths(paths) -> list:
     return files
 
 
+def read_manifest(path) -> dict:
+    """A dataset's manifest.json, or ValueError naming the file if it is not readable JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path} is not a readable {MANIFEST} ({type(error).__name__}: {error}); "
+                         f"delete it and run cathsim-collect on the folder again (finished shards are kept)") from error
+
+
 def _manifest_shards(folder: Path) -> list:
     """The shards a cathsim-collect manifest lists (a run asked for fewer episodes than an
     earlier one may leave more shard files than the dataset holds)."""
-    manifest = folder / "manifest.json"
+    manifest = folder / MANIFEST
     if not manifest.is_file():
         return []
-    return [folder / shard["file"] for shard in json.loads(manifest.read_text()).get("shards", [])]
+    return [folder / shard["file"] for shard in read_manifest(manifest).get("shards", [])]
 
 
 def read_keys(path, keys) -> dict:

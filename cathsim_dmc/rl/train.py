@@ -50,7 +50,7 @@ def normalize_observations(env, resume_from: Path | None = None):
     from stable_baselines3.common.vec_env import VecNormalize
 
     from cathsim_dmc.gym import IMAGE_KEYS
-    from cathsim_dmc.policies import load_normalizer, normalizer_path
+    from cathsim_dmc.run_files import load_normalizer, normalizer_path
 
     keys = [k for k in env.observation_space.spaces if k not in IMAGE_KEYS]
     if resume_from is not None and normalizer_path(resume_from).is_file():
@@ -270,21 +270,20 @@ def _callbacks():
             return True
 
         def _evaluate(self):
-            returns, successes, lengths = [], [], []
-            for episode in range(self.episodes):
-                obs, info = self.env.reset(seed=self.seed + episode)
-                total, done = 0.0, False
-                normalizer = self.model.get_vec_normalize_env()
-                while not done:
-                    if normalizer is not None:
-                        obs = normalizer.normalize_obs(obs)
-                    action, _ = self.model.predict(obs, deterministic=True)
-                    obs, reward, terminated, truncated, info = self.env.step(action)
-                    total += reward
-                    done = terminated or truncated
-                returns.append(total)
-                successes.append(float(info["success"]))
-                lengths.append(info["step"])
+            from cathsim_dmc.evaluation import run_episodes
+
+            normalizer = self.model.get_vec_normalize_env()
+
+            def act(observation, env):
+                if normalizer is not None:
+                    observation = normalizer.normalize_obs(observation)
+                return self.model.predict(observation, deterministic=True)[0]
+
+            summaries = run_episodes(self.env, act, self.episodes, self.seed, show_progress=False,
+                                     log_episodes=False)
+            returns = [s["return"] for s in summaries]
+            successes = [float(s["success"]) for s in summaries]
+            lengths = [s["steps"] for s in summaries]
             self.logger.record("eval/mean_return", float(np.mean(returns)))
             self.logger.record("eval/success_rate", float(np.mean(successes)))
             self.logger.record("eval/mean_episode_length", float(np.mean(lengths)))
@@ -314,7 +313,7 @@ def _atomic(path: Path, write) -> None:
 
 def save_model(model, path: Path) -> None:
     """`model` to `path` (atomic), and its observation normaliser beside it if it has one."""
-    from cathsim_dmc.policies import normalizer_path
+    from cathsim_dmc.run_files import normalizer_path
 
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
@@ -324,7 +323,7 @@ def save_model(model, path: Path) -> None:
 
 def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
     """step_<n>.zip and last.zip (same content), replay_buffer.pkl optional; atomic."""
-    from cathsim_dmc.policies import normalizer_path
+    from cathsim_dmc.run_files import normalizer_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -367,6 +366,32 @@ def best_record(run_dir: Path) -> dict | None:
     return json.loads(record_file.read_text()) if record_file.is_file() else None
 
 
+def check_training(algo: dict, trainer: dict) -> None:
+    """ValueError naming the setting for an `algo` or `trainer` value training cannot use;
+    `train` calls it first, and cathsim-train before it builds an environment."""
+    from cathsim_dmc.checks import check_number
+
+    check_number("algo.learning_rate", algo["learning_rate"], 0.0, inclusive=False)
+    check_number("algo.batch_size", algo["batch_size"], 1, whole=True)
+    check_number("algo.buffer_size", algo["buffer_size"], 1, whole=True)
+    check_number("algo.learning_starts", algo["learning_starts"], 0, whole=True)
+    check_number("algo.gamma", algo["gamma"], 0.0)
+    if not algo["gamma"] <= 1:
+        raise ValueError(f"algo.gamma={algo['gamma']!r} must lie in [0, 1]")
+    check_number("trainer.total_timesteps", trainer["total_timesteps"], 1, whole=True)
+    check_number("trainer.n_envs", trainer["n_envs"], 1, whole=True)
+    check_number("trainer.checkpoint_every", trainer["checkpoint_every"], 0, whole=True)
+    check_number("trainer.eval_every", trainer.get("eval_every", 0), 0, whole=True)
+    # eval_episodes serves the periodic evaluations and, without final_eval_episodes, the
+    # final report: checked now, not after the training it would end.
+    check_number("trainer.eval_episodes", trainer["eval_episodes"], 1, whole=True)
+    if trainer.get("final_eval_episodes") is not None:
+        check_number("trainer.final_eval_episodes", trainer["final_eval_episodes"], 1, whole=True)
+    device = str(trainer["device"])
+    if device not in ("auto", "cpu", "cuda") and not device.startswith("cuda:"):
+        raise ValueError(f"trainer.device={device!r}; choose one of ['auto', 'cpu', 'cuda']")
+
+
 @dataclass
 class TrainResult:
     model: object
@@ -379,7 +404,7 @@ def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_
                       env_options: dict | None = None, normalize_observations: bool = False) -> None:
     """policy.json: what evaluating the checkpoint needs (observation preset, image options,
     and the environment options it was trained with that change what it sees or drives)."""
-    from cathsim_dmc.policies import POLICY_FILE
+    from cathsim_dmc.run_files import POLICY_FILE
 
     info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta,
             "env_options": dict(env_options or {}), "normalize_observations": bool(normalize_observations)}
@@ -401,6 +426,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
 
     from cathsim_dmc.rl.demos import SACfD
 
+    check_training(algo, trainer)
     run_dir = Path(run_dir)
     if trainer.get("torch_threads"):
         torch.set_num_threads(int(trainer["torch_threads"]))

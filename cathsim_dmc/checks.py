@@ -1,0 +1,28 @@
+"""Checks of user-given numbers, shared by the API and the command-line tools.
+
+Hydra passes `seed=abc` through as the string "abc", and `float("abc")` fails with a
+message that does not say which setting was wrong: these name it and the valid range.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+
+def check_number(name: str, value, minimum: float | None = None, whole: bool = False, inclusive: bool = True):
+    """`value` as a finite number (>= or > `minimum` if given; an int if `whole`), or a
+    ValueError naming the parameter: one wording for every tool."""
+    kind = "a whole number" if whole else "a finite number"
+    bound = "" if minimum is None else f" {'>=' if inclusive else '>'} {minimum:g}"
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = None
+    valid = not isinstance(value, (bool, str)) and number is not None and math.isfinite(number)
+    valid = valid and not (whole and not isinstance(value, numbers.Integral))  # 2.0 episodes: a slip
+    if valid and minimum is not None:
+        valid = number >= minimum if inclusive else number > minimum
+    if not valid:
+        raise ValueError(f"{name}={value!r} must be {kind}{bound}")
+    return int(number) if whole else number

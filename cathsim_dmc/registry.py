@@ -1,0 +1,33 @@
+"""The suite's names and Gymnasium ids, importable without dm_control or MuJoCo.
+
+`import cathsim_dmc` registers every id from here: the ids point at
+``cathsim_dmc.gym:CathSimEnv`` by name, so dm_control and MuJoCo load only when
+``gymnasium.make`` builds an environment, and the anatomy layer stays pure geometry.
+"""
+
+from __future__ import annotations
+
+from cathsim_dmc.paths import available_aortas
+
+TARGETS = ("bca", "lcca")
+ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
+ENTRY_POINT = "cathsim_dmc.gym:CathSimEnv"
+
+
+def env_id(task: str, aorta: str) -> str:
+    return ENV_ID_FORMAT.format(task=task, aorta=aorta)
+
+
+def all_tasks() -> tuple:
+    """Every (target, shipped aorta) pair, as `cathsim_dmc.tasks.ALL_TASKS`."""
+    return tuple((target, aorta) for aorta in available_aortas() for target in TARGETS)
+
+
+def register_all() -> None:
+    """Register an id for every pair in the suite (idempotent)."""
+    import gymnasium
+
+    for task, aorta in all_tasks():
+        name = env_id(task, aorta)
+        if name not in gymnasium.registry:
+            gymnasium.register(id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "aorta": aorta})

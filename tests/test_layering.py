@@ -1,0 +1,94 @@
+"""The package's layering, read from its imports (every import statement, including the
+ones deferred into functions): no module outside cli/ imports cli/, no import circles,
+and the anatomy layer imports without dm_control or MuJoCo."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = "cathsim_dmc"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[0] == "tasks":  # tasks/ ships as cathsim_dmc.tasks
+        parts = [PACKAGE] + parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph() -> dict:
+    """{module: the package's modules it imports}. `from a import b` counts as an import of
+    the module a.b when b is a module, else of a."""
+    files = {_module_name(p): p for folder in (PACKAGE, "tasks") for p in (ROOT / folder).rglob("*.py")}
+    graph = {}
+    for name, path in files.items():
+        imported = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                for alias in node.names:
+                    sub = f"{node.module}.{alias.name}"
+                    imported.add(sub if sub in files else node.module)
+        graph[name] = {m for m in imported if m in files and m != name}
+    return graph
+
+
+def cycles(graph: dict) -> list:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_graph_sees_deferred_imports():
+    # Most of the package imports inside functions; a graph blind to them would pass anything.
+    graph = import_graph()
+    assert "cathsim_dmc.evaluation" in graph["cathsim_dmc.rl.collect"]
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_module_outside_cli_imports_cli():
+    graph = import_graph()
+    offenders = [(m, i) for m, imported in graph.items() if not m.startswith(f"{PACKAGE}.cli")
+                 for i in imported if i.startswith(f"{PACKAGE}.cli")]
+    assert offenders == []
+
+
+def test_no_import_circles():
+    assert cycles(import_graph()) == []
+
+
+def test_anatomy_imports_without_dm_control_or_mujoco():
+    # A fresh interpreter: this test process has loaded everything already.
+    code = ("import sys, cathsim_dmc.anatomy; "
+            "loaded = [m for m in ('dm_control', 'mujoco') if m in sys.modules]; "
+            "assert not loaded, loaded")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
