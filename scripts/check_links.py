@@ -24,7 +24,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(\s*<?([^)\s>]*)>?(?:\s+\"[^\"]*\")?\s*\)")
 HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 FENCE = re.compile(r"^\s*(```|~~~)")
-CODE_SPAN = re.compile(r"(`+)(?:(?!\1).)+?\1")
+CODE_SPAN = re.compile(r"(`+)(?:(?!\1).)+?\1", re.S)
 EXTERNAL = ("http://", "https://", "mailto:", "ftp://")
 
 
@@ -34,15 +34,23 @@ def markdown_files(root: pathlib.Path = ROOT) -> List[pathlib.Path]:
     return [f for f in files if f.is_file()]
 
 
-def _prose_lines(text: str) -> Iterator[Tuple[int, str]]:
-    """(line number, line) outside fenced code blocks, with code spans blanked."""
+def _paragraphs(text: str) -> Iterator[Tuple[int, str]]:
+    """(first line number, text) of each paragraph outside fenced code blocks, with code
+    spans blanked; a link may run over several lines of its paragraph."""
     fenced = False
-    for number, line in enumerate(text.splitlines(), start=1):
+    start, lines = 0, []
+    for number, line in enumerate(text.splitlines() + [""], start=1):
         if FENCE.match(line):
             fenced = not fenced
+            line = ""
+        if fenced or not line.strip():
+            if lines:
+                yield start, CODE_SPAN.sub("", "\n".join(lines))
+            lines = []
             continue
-        if not fenced:
-            yield number, CODE_SPAN.sub("", line)
+        if not lines:
+            start = number
+        lines.append(line)
 
 
 def slug(heading: str) -> str:
@@ -74,12 +82,13 @@ def anchors(path: pathlib.Path) -> set:
 def broken_links(path: pathlib.Path) -> List[str]:
     """One message per broken relative link or image in `path`."""
     problems = []
-    for number, line in _prose_lines(path.read_text(encoding="utf-8")):
-        for match in LINK.finditer(line):
+    for first, paragraph in _paragraphs(path.read_text(encoding="utf-8")):
+        for match in LINK.finditer(paragraph):
             target = match.group(1)
             if not target or target.startswith(EXTERNAL):
                 continue
             file_part, _, anchor = target.partition("#")
+            number = first + paragraph.count("\n", 0, match.start())
             where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{number}"
             destination = (path.parent / file_part).resolve() if file_part else path
             if not destination.exists():
