@@ -1,6 +1,6 @@
 """Aorta: an anatomy asset as a composer entity.
 
-The asset folder (format in the README) holds the lumen surface as one visual mesh,
+The asset folder (format in docs/anatomy.md) holds the lumen surface as one visual mesh,
 the wall as convex collision pieces, named sites and centerlines. Collision pieces sit
 in geom group 3, which observation renders never draw; the visual mesh is one geom in
 group 1, so drawing the vessel costs one mesh whatever the wall's piece count.
