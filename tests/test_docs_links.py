@@ -1,0 +1,48 @@
+"""The documentation holds together: every relative link and image of README.md, docs/*.md
+and the asset cards resolves, the README stays short, and CI runs the README's test command."""
+
+import importlib.util
+import re
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def check_links(repo_root):
+    spec = importlib.util.spec_from_file_location("check_links", repo_root / "scripts" / "check_links.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_relative_link_resolves(check_links):
+    files = check_links.markdown_files()
+    assert any(f.name == "README.md" for f in files) and len(files) > 1
+    problems = [p for f in files for p in check_links.broken_links(f)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_checker_finds_a_missing_file_and_a_missing_heading(check_links, tmp_path):
+    (tmp_path / "other.md").write_text("# A heading\n\n## `Code` and more, too\n")
+    page = tmp_path / "page.md"
+    page.write_text("[ok](other.md) [ok](other.md#a-heading) [ok](other.md#code-and-more-too) [ok](#top)\n"
+                    "# Top\n"
+                    "![gone](missing.png) [gone](other.md#no-such-heading) `[code](ignored.md)`\n"
+                    "```\n[fenced](ignored.md)\n```\n")
+    problems = check_links.broken_links(page)
+    assert len(problems) == 2, problems
+    assert "missing.png" in problems[0] and "no-such-heading" in problems[1]
+
+
+def test_readme_is_short_and_links_every_docs_page(repo_root):
+    readme = (repo_root / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    for page in sorted((repo_root / "docs").glob("*.md")):
+        assert f"docs/{page.name}" in readme, f"README does not link {page.name}"
+
+
+def test_ci_runs_the_readmes_test_command(repo_root):
+    readme = (repo_root / "README.md").read_text()
+    commands = re.findall(r"^(bash scripts/\S+)", readme, flags=re.M)
+    assert "bash scripts/test.sh" in commands
+    assert "bash scripts/test.sh" in (repo_root / ".ci" / "run").read_text()
