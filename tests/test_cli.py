@@ -95,7 +95,8 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
                       "dense": True, "max_steps": 7, "insertion_limit_margin_m": 0.02, "renderer": "raster",
                       "style": "fluoro", "extra_observations": ("wire_slack",)}
     # Only training uses the shaping reward: evaluation scores the paper's task.
-    assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0}
+    assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0,
+                                                        "aim_weight": 0.0}
     # A checkpoint brings its own preset and options, whatever the tool's config says.
     policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"insertion_limit_margin_m": 0.0})
     assert env_kwargs(_compose("eval", ["obs=enn"]), policy=policy) == {
