@@ -509,7 +509,8 @@ def _check_introducer(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot) 
     if robot.seal_half_width_m is None:
         raise ValueError("robot has no seal plate (seal_half_width_m=None): the access would stay open beside "
                          "the sheath and a buckled wire could leave the vessel there")
-    needed_m = aorta.access_radius_m + aorta.wall_thickness_m
+    # The wall's pieces lie contact_margin_m behind the lumen surface (see `Aorta`).
+    needed_m = aorta.access_radius_m + aorta.contact_margin_m + aorta.wall_thickness_m
     if robot.seal_half_width_m < needed_m:
         raise ValueError(f"robot seal_half_width_m={robot.seal_half_width_m} m does not cover the open end of "
                          f"aorta {aorta.name!r} (radius plus wall: {needed_m:.4g} m)")
