@@ -26,7 +26,7 @@ SUCCESS_REWARD = 10.0
 # tip to the target) or "geodesic" (along the vessel, so a wrong branch scores worse than
 # the right ostium; see `Navigate.reward_distance_m`).
 REWARDS = ("euclidean", "geodesic")
-EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position")
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
 
@@ -37,9 +37,11 @@ class StepInfo:
 
     tip_position_m: np.ndarray
     target_distance_m: float
-    contact_force_n: float  # total at the end of the control step
-    max_contact_force_n: float
-    mean_contact_force_n: float  # total, averaged over the control step's physics steps
+    contact_force_n: float  # total at the end of the control step (one physics step of twenty)
+    max_contact_force_n: float  # largest single contact at the end of the control step
+    # Total, averaged over the control step's physics steps: the step's wall force, which
+    # the metrics, the `contact_force` observation and the training logs use.
+    mean_contact_force_n: float
     success: bool
     diverged: bool
     path_distance_m: float  # tip to target along the vessel (geodesic), metres
@@ -234,8 +236,9 @@ class Navigate(composer.Task):
             "pixels": observable.Generic(lambda physics: self._top_view.image(physics, settings.style)),
             "guidewire_mask": observable.Generic(self._top_view.mask),
             "tip_position": observable.MJCFFeature("xpos", self._guidewire.tip_site),
-            "contact_force": observable.Generic(
-                lambda physics: np.array([self.contact_forces(physics).total_n], dtype=np.float64)),
+            # The step's wall force: the total averaged over its physics steps (at reset,
+            # the total of the start state).
+            "contact_force": observable.Generic(lambda physics: np.array([self._mean_force_n], dtype=np.float64)),
         }
         for name, obs_item in obs.items():
             obs_item.enabled = name in settings.enabled or name in self._extra_observations
@@ -260,11 +263,13 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
-        self._mean_force_n = 0.0
         # composer runs the entities' hooks after this one; the start distances need the
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
         self._guidewire.initialize_episode(physics, random_state)
         physics.forward()
+        # No physics step yet: the reset's force is the start state's total.
+        self._mean_force_n = self.contact_forces(physics).total_n
+        self._contacts = None
         self._tip_location = None
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
         self._reward_distance_m = self.reward_distance_m(physics)
