@@ -85,7 +85,7 @@ class Aorta(composer.Entity):
             other, and the solver pushed them against each other (3,568 N of contact
             force on a 12 N load in one physics step; see docs/model.md, "Contact
             forces"). With the margin a segment must sink more than its radius plus the
-            margin (1.45 mm) for that; the deepest wall contact measured was 0.7 mm. The
+            margin (1.45 mm) for that; the deepest wall contact measured was 0.78 mm. The
             moved pieces' constraint surface follows the lumen within 0.2 mm (it is
             rounded at ridges, and a face moves back by less than the margin where its
             vertex normals lean off it). 0 keeps the pieces where the asset has them.
