@@ -156,7 +156,10 @@ class Aorta(composer.Entity):
     def geoms_key(self) -> bytes:
         """Identifies what `add_geoms` adds (for caching compiled models)."""
         asset = self._asset
-        return b"".join([repr((self._wall, self._visual)).encode(), asset.hull_vertices.tobytes(),
+        # The pieces as simulated (moved by the margin), so that a change in how they are
+        # moved never reuses a stale compiled model.
+        pieces = np.concatenate(self.wall_pieces) if self.wall_pieces else np.zeros((0, 3))
+        return b"".join([repr((self._wall, self._visual)).encode(), pieces.tobytes(),
                          asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
 
     def initialize_episode(self, physics, random_state):
