@@ -78,6 +78,7 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
 def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None) -> dict:
     """metrics.json, metrics.md, path.png and forces.png for one policy on one (task, aorta)."""
     from cathsim_dmc import metrics, plots
+    from cathsim_dmc.trajectory import wall_forces_n
 
     out_dir = Path(out_dir)
     per_episode = metrics.trajectory_metrics(arrays)
@@ -90,7 +91,8 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
     title = f"{label['policy']} on {target}/{label['aorta']}: success {summary['success_pct']['mean']:.0f}%"
     plots.path_plot(asset, target, arrays["start_tip_position_m"], [arrays["tip_position_m"][r] for r in rows],
                     [bool(arrays["success"][r].any()) for r in rows], out_dir / "path.png", title)
-    plots.force_plots([arrays["contact_force_n"][r] for r in rows], out_dir / "forces.png", title=title)
+    forces = wall_forces_n(arrays)  # the step-mean wall force (end of step for older files)
+    plots.force_plots([forces[r] for r in rows], out_dir / "forces.png", title=title)
     return report
 
 

@@ -61,7 +61,7 @@ def force_plots(forces_per_episode, out_path, safe_force_n: float = 2.0, title: 
     for ax in (ax_t,):
         ax.axhline(safe_force_n, color="k", ls=":", lw=1, label=f"safety threshold {safe_force_n:g} N")
     ax_t.set_xlabel("control step")
-    ax_t.set_ylabel("total contact force (N)")
+    ax_t.set_ylabel("total contact force, step mean (N)")
     ax_t.legend(fontsize=7)
     every = np.concatenate([np.asarray(f) for f in forces_per_episode]) if forces_per_episode else np.zeros(0)
     ax_h.hist(every, bins=40, color="tab:gray")

@@ -132,4 +132,4 @@ class TeleopSession:
         info = self.info
         ended = "  (ended: R for a new episode)" if self.done else ""
         return (f"episode {self.episodes}  step {info.get('step', 0)}  target {info.get('target_distance_m', 0) * 1e3:.1f} mm  "
-                f"force {info.get('contact_force_n', 0):.2f} N  action {self.state.insertion:+.0f} {self.state.rotation:+.0f}{ended}")
+                f"force {info.get('mean_contact_force_n', 0):.2f} N  action {self.state.insertion:+.0f} {self.state.rotation:+.0f}{ended}")

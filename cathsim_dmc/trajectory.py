@@ -9,7 +9,9 @@ Schema (version 2): one row per control step, all episodes concatenated.
   action             (N, 2)    float32, [insertion, rotation] in [-1, 1]
   reward             (N,)      float32
   tip_position_m     (N, 3)    float32, tip after the step, metres
-  contact_force_n    (N,)      float32, total wire-vessel contact force after the step, newtons
+  contact_force_n    (N,)      float32, total wire-vessel contact force in the state after the
+                               step, newtons (one instant: zero in most steps, see
+                               `mean_contact_force_n`)
   target_distance_m  (N,)      float32
   success            (N,)      bool, tip within the success radius after the step
   terminated         (N,)      bool, episode ended at the target
@@ -30,8 +32,10 @@ Optional keys (absent from files that did not record them; readers check):
                                computed from that row's observation (cathsim-collect)
   start_feature_z    (E, F)    float32, Z of the reset observation
   mean_contact_force_n (N,)    float32, total wire-vessel contact force averaged over the
-                               physics steps of the control step, newtons (smoother than
-                               the end-of-step value; what a force sensor's low-pass sees)
+                               physics steps of the control step, newtons (what a force
+                               sensor's low-pass sees). The force the metrics use
+                               (`wall_forces_n`); every tool records it, files written
+                               before it existed fall back to `contact_force_n`.
   expert_action      (N, 2)    float32, the policy's own action when `action` (executed)
                                had exploration noise added (cathsim-collect action_noise_std)
   first_episode      ()        int, global index of this file's episode 0 (a shard of a
@@ -48,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 SCHEMA_VERSION = 2
+FORCE_KEY = "mean_contact_force_n"  # the wall force of a step, as the metrics read it
 _PER_STEP = {
     "episode": np.int32, "step": np.int32, "action": np.float32, "reward": np.float32,
     "tip_position_m": np.float32, "contact_force_n": np.float32, "target_distance_m": np.float32,
@@ -115,6 +120,17 @@ class TrajectoryRecorder:
     def save(self, path, compress: bool = True, **extra) -> Path:
         """Write the npz atomically; `extra` arrays are added as they are."""
         return save_npz(path, {**self.arrays(), **extra}, compress)
+
+
+def wall_forces_n(arrays: dict) -> np.ndarray:
+    """The wall force of each row (N,), in newtons: the step mean (`mean_contact_force_n`).
+
+    The end-of-step total (`contact_force_n`) samples one physics step of twenty: it is
+    zero in most steps and a single physics step can read an impact. Files written before
+    the step mean was recorded fall back to it.
+    """
+    key = FORCE_KEY if FORCE_KEY in arrays else "contact_force_n"
+    return np.asarray(arrays[key], dtype=float)
 
 
 def save_npz(path, arrays: dict, compress: bool = True) -> Path:

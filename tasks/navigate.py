@@ -26,7 +26,7 @@ SUCCESS_REWARD = 10.0
 # tip to the target) or "geodesic" (along the vessel, so a wrong branch scores worse than
 # the right ostium; see `Navigate.reward_distance_m`).
 REWARDS = ("euclidean", "geodesic")
-EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position")
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 # Aim shaping looks this many lumen radii ahead along the target's centerline (as the expert).
 AIM_LOOKAHEAD_RADII = 1.5
 # The aim counts fully once the next stretch is this far off the shaft's axis (the share of
@@ -42,9 +42,11 @@ class StepInfo:
 
     tip_position_m: np.ndarray
     target_distance_m: float
-    contact_force_n: float  # total at the end of the control step
-    max_contact_force_n: float
-    mean_contact_force_n: float  # total, averaged over the control step's physics steps
+    contact_force_n: float  # total at the end of the control step (one physics step of twenty)
+    max_contact_force_n: float  # largest single contact at the end of the control step
+    # Total, averaged over the control step's physics steps: the step's wall force, which
+    # the metrics, the `contact_force` observation and the training logs use.
+    mean_contact_force_n: float
     success: bool
     diverged: bool
     path_distance_m: float  # tip to target along the vessel (geodesic), metres
@@ -248,8 +250,9 @@ class Navigate(composer.Task):
             "pixels": observable.Generic(lambda physics: self._top_view.image(physics, settings.style)),
             "guidewire_mask": observable.Generic(self._top_view.mask),
             "tip_position": observable.MJCFFeature("xpos", self._guidewire.tip_site),
-            "contact_force": observable.Generic(
-                lambda physics: np.array([self.contact_forces(physics).total_n], dtype=np.float64)),
+            # The step's wall force: the total averaged over its physics steps (at reset,
+            # the total of the start state).
+            "contact_force": observable.Generic(lambda physics: np.array([self._mean_force_n], dtype=np.float64)),
         }
         for name, obs_item in obs.items():
             obs_item.enabled = name in settings.enabled or name in self._extra_observations
@@ -274,11 +277,13 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
-        self._mean_force_n = 0.0
         # composer runs the entities' hooks after this one; the start distances need the
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
         self._guidewire.initialize_episode(physics, random_state)
         physics.forward()
+        # No physics step yet: the reset's force is the start state's total.
+        self._mean_force_n = self.contact_forces(physics).total_n
+        self._contacts = None
         self._tip_location = None
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
         self._reward_distance_m = self.reward_distance_m(physics)
@@ -552,7 +557,8 @@ def _check_introducer(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot) 
     if robot.seal_half_width_m is None:
         raise ValueError("robot has no seal plate (seal_half_width_m=None): the access would stay open beside "
                          "the sheath and a buckled wire could leave the vessel there")
-    needed_m = aorta.access_radius_m + aorta.wall_thickness_m
+    # The wall's pieces lie contact_margin_m behind the lumen surface (see `Aorta`).
+    needed_m = aorta.access_radius_m + aorta.contact_margin_m + aorta.wall_thickness_m
     if robot.seal_half_width_m < needed_m:
         raise ValueError(f"robot seal_half_width_m={robot.seal_half_width_m} m does not cover the open end of "
                          f"aorta {aorta.name!r} (radius plus wall: {needed_m:.4g} m)")

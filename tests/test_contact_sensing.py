@@ -66,6 +66,24 @@ def test_mean_is_the_average_over_every_physics_step(env):
     assert max(means) > 0.01  # the wire is pushed along the arch wall: contact throughout
 
 
+def test_contact_force_observation_is_the_step_mean():
+    """The `contact_force` observation (an extra) is the step's mean wall force, not the
+    force of the step's last physics step; at reset, the start state's force."""
+    env = CathSimEnv(task="bca", aorta="type1", obs="internal", extra_observations=("contact_force",))
+    try:
+        observation, info = env.reset(seed=0)
+        assert observation["contact_force"][0] == pytest.approx(info["contact_force_n"], abs=1e-6)
+        policy = make_policy("expert", seed=0)
+        differ = 0
+        for _ in range(INTO_THE_ARCH + 10):
+            observation, _, _, _, info = env.step(policy(observation, env))
+            assert observation["contact_force"][0] == pytest.approx(info["mean_contact_force_n"], rel=1e-6, abs=1e-6)
+            differ += abs(info["mean_contact_force_n"] - info["contact_force_n"]) > 1e-3
+        assert differ >= 5  # the two readings do differ in contact
+    finally:
+        env.close()
+
+
 def test_mean_and_end_of_step_force_agree_on_average_at_rest(env):
     """Held still against the wall, the wire's contacts keep chattering (the number of
     contacts changes from one physics step to the next). Both labels then estimate the

@@ -7,16 +7,21 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.cli.forcecheck import CDF_PLOT, RESULT_JSON, RESULT_MD, force_check
+from cathsim_dmc.cli.forcecheck import CDF_PLOT, RESULT_JSON, RESULT_MD, force_check, simulated_forces
 from cathsim_dmc.trajectory import TrajectoryRecorder
 
 
-def _trajectory(path, forces):
+def _trajectory(path, forces, step_mean=True):
+    """A trajectory whose steps' wall forces (step means) are `forces`; the end-of-step
+    force is zero, as it is in most simulated steps. `step_mean=False`: an older file
+    with the end-of-step force only, set to `forces`."""
     recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="synthetic")
     recorder.start_episode(np.zeros(3), 0.1)
     for step, force in enumerate(forces, 1):
-        info = {"step": step, "tip_position_m": np.zeros(3), "contact_force_n": force, "target_distance_m": 0.1,
-                "success": False}
+        info = {"step": step, "tip_position_m": np.zeros(3), "contact_force_n": 0.0 if step_mean else force,
+                "target_distance_m": 0.1, "success": False}
+        if step_mean:
+            info["mean_contact_force_n"] = force
         recorder.record(np.zeros(2), 0.0, info, False, False)
     return recorder.save(path)
 
@@ -32,6 +37,13 @@ def test_same_distribution_is_not_rejected(simulated, tmp_path):
     assert result["p_value"] > 0.05
     assert {p.name for p in (tmp_path / "out").iterdir()} == {RESULT_JSON, RESULT_MD, CDF_PLOT}
     assert json.loads((tmp_path / "out" / RESULT_JSON).read_text())["u_statistic"] == result["u_statistic"]
+
+
+def test_files_without_the_step_mean_give_their_end_of_step_force(tmp_path):
+    forces = np.random.default_rng(1).normal(0.5, 0.1, size=400)
+    older = _trajectory(tmp_path / "older.npz", forces, step_mean=False)
+    np.testing.assert_allclose(simulated_forces([older]), forces.astype(np.float32))
+    np.testing.assert_allclose(simulated_forces([_trajectory(tmp_path / "new.npz", forces)]), forces.astype(np.float32))
 
 
 def test_shifted_distribution_is_rejected(simulated, tmp_path):

@@ -66,6 +66,25 @@ def test_trajectory_metrics_splits_episodes():
     first, second = metrics.trajectory_metrics(arrays)
     assert first.episode_length == 2 and first.success_pct == 100 and first.spl_pct == pytest.approx(100.0)
     assert second.episode_length == 1 and second.path_length_cm == pytest.approx(1.0) and second.spl_pct == 0
+    # A file without the step mean (written before it existed): the end-of-step force.
+    assert first.force_n == pytest.approx(1.5) and first.safety_pct == pytest.approx(50.0)
+
+
+def test_force_and_safety_use_the_step_mean():
+    """The end-of-step force samples one physics step in twenty (zero here, as in most
+    steps); Force and Safety read the step's mean."""
+    arrays = {
+        "episode": np.array([0, 0, 0, 0]),
+        "tip_position_m": np.array([[0, 0.01 * k, 0] for k in range(1, 5)]),
+        "contact_force_n": np.array([0.0, 0.0, 0.0, 9.0]),
+        "mean_contact_force_n": np.array([1.0, 3.0, 2.5, 1.5]),
+        "success": np.array([False, False, False, True]),
+        "start_tip_position_m": np.zeros((1, 3)),
+        "optimal_path_length_m": np.array([0.04]),
+    }
+    (episode,) = metrics.trajectory_metrics(arrays)
+    assert episode.force_n == pytest.approx(2.0)
+    assert episode.safety_pct == pytest.approx(50.0)  # 1 and 1.5 N are below 2 N
 
 
 def test_trajectory_dataset_round_trip(tmp_path):

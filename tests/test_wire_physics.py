@@ -59,9 +59,12 @@ def test_tip_rests_at_its_configured_angle(shape, angle_deg):
     assert physics.bind(wire.tip_site).xpos[0] > 0
 
 
-def test_contact_force_reads_the_push_against_a_wall():
+@pytest.mark.parametrize("margin_m", [0.0, 1e-3])
+def test_contact_force_reads_the_push_against_a_wall(margin_m):
     """The insertion drive stalls at its force limit against a flat wall: the wall must
-    read that force, pointing away from the wire."""
+    read that force, pointing away from the wire. A wall with a contact margin, moved back
+    by it as the vessel wall is (`Aorta.contact_margin_m`), reads the same and stops the
+    wire at the same face."""
     push_n = 1.0
     arena = OperatingArena()
     # A solid (stiffer) wire: a soft one bends where it leaves the channel and leans on
@@ -72,8 +75,9 @@ def test_contact_force_reads_the_push_against_a_wall():
     robot.attach(wire, robot.wire_attachment_site)
     arena.mjcf_model.option.gravity = [0, 0, 0]
     wall = arena.mjcf_model.worldbody.add(
-        "geom", type="box", size=[0.02, 0.02, 0.002], pos=[0, 0, 0.037], contype=geom_groups.WALL_CONTYPE,
-        conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1], solimp=[0.99, 0.999, 0.0005, 0.5, 2])
+        "geom", type="box", size=[0.02, 0.02, 0.002], pos=[0, 0, 0.037 + margin_m], contype=geom_groups.WALL_CONTYPE,
+        conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1], solimp=[0.99, 0.999, 0.0005, 0.5, 2],
+        margin=margin_m)
     physics = mjcf.Physics.from_mjcf_model(arena.mjcf_model)
     wire.initialize_episode(physics, None)
     is_wire = np.zeros(physics.model.ngeom, bool)
@@ -105,3 +109,55 @@ def test_blood_drag_option_resists_wire_motion():
         drag[blood] = float(data.qfrc_fluid @ data.qvel)
         assert env.physics.model.opt.density == (1055.0 if blood else 0.0)
     assert drag[False] == 0.0 and drag[True] < 0.0
+
+
+def _seam_contacts(margin_m, depth_m=0.6e-3, approach_m_s=0.09):
+    """A wire segment along the seam between two flat wall prisms (lumen surface z = 0,
+    lumen above), `depth_m` past the surface and moving into it, as in the 3,568 N step
+    of issue 17: its contacts' forces (N) and normals (pointing into the wall)."""
+    from cathsim_dmc.entities.aorta import moved_outward
+
+    wire = Guidewire()
+    mm, thickness = 1e-3, 2e-3
+    pieces = []
+    for side in (-1, 1):  # two triangles sharing the edge along x at y = 0
+        inner = np.array([[-10 * mm, 0, 0], [10 * mm, 0, 0], [0, side * 10 * mm, 0]])
+        pieces.append(np.vstack([inner, inner - [0, 0, thickness]]))
+    root = mjcf.RootElement()
+    root.option.set_attributes(timestep=wire.physics_timestep_s, gravity=[0, 0, 0], integrator="implicitfast",
+                               cone="elliptic")
+    root.option.flag.multiccd = "disable"
+    for i, piece in enumerate(moved_outward(pieces, margin_m)):
+        mesh = root.asset.add("mesh", name=f"piece{i}", vertex=piece.ravel())
+        root.worldbody.add("geom", name=f"piece{i}", type="mesh", mesh=mesh, margin=margin_m,
+                           contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY,
+                           solref=list(wire.contact_solref), solimp=list(wire.contact_solimp))
+    segment_m = wire.segment_lengths_m[1]
+    body = root.worldbody.add("body", pos=[0, 0, wire.radius_m - depth_m])
+    body.add("freejoint")
+    body.add("geom", name="segment", type="capsule", fromto=[-segment_m / 2, 0, 0, segment_m / 2, 0, 0],
+             size=[wire.radius_m], contype=geom_groups.WIRE_CONTYPE, conaffinity=geom_groups.WIRE_CONAFFINITY,
+             mass=float(wire.mass_scale * 6450.0 * np.pi * wire.radius_m**2 * segment_m),
+             solref=list(wire.contact_solref), solimp=list(wire.contact_solimp))
+    physics = mjcf.Physics.from_mjcf_model(root)
+    physics.data.qvel[2] = -approach_m_s
+    is_wire = np.zeros(physics.model.ngeom, bool)
+    is_wire[physics.model.name2id("segment", "geom")] = True
+    contacts = cs_physics.wire_contacts(physics, is_wire, is_vessel_geom=~is_wire)
+    return contacts.forces_n, physics.data.contact.frame[:physics.data.ncon, :3]
+
+
+def test_a_wire_deep_in_a_seam_between_wall_pieces_reads_its_load():
+    """Without a margin, the two pieces' side faces become the contact normals (they are
+    nearer than the lumen face once the segment is deeper than its radius), opposite to
+    each other, and the solver drives them against each other: thousands of newtons that
+    cancel. With the wall's margin and the pieces moved back by it, the normals are the
+    surface's and the force is the segment's load (about 0.14 kg stopped within a step)."""
+    forces, normals = _seam_contacts(margin_m=0.0)
+    assert np.linalg.norm(forces, axis=1).sum() > 100.0  # the artefact the margin removes
+    assert np.abs(normals[:, 2]).max() < 0.5  # side faces: horizontal normals
+    forces, normals = _seam_contacts(margin_m=0.5e-3)
+    total = np.linalg.norm(forces, axis=1).sum()
+    assert 0.5 < total < 10.0
+    assert total == pytest.approx(np.linalg.norm(forces.sum(axis=0)), rel=0.05)  # nothing cancels
+    assert np.abs(normals[:, 2]).min() > np.cos(np.radians(30))

@@ -3,8 +3,10 @@
     cathsim-forcecheck outputs/eval/bca-type1/<run>/trajectories.npz --reference measured.csv --out check
     cathsim-forcecheck run1/trajectories.npz run2/trajectories.npz --mean 0.3 --std 0.1 --seed 0 --out check
 
-The simulated samples are the `contact_force_n` rows of the trajectory files (one per
-control step; `--contact-only` keeps the steps with a contact). The reference is either
+The simulated samples are the wall forces of the trajectory files' rows, one per control
+step: the total averaged over the step's physics steps (`mean_contact_force_n`; files
+written before it existed give their end-of-step `contact_force_n`; see
+`cathsim_dmc.trajectory.wall_forces_n`). `--contact-only` keeps the steps with a contact. The reference is either
 a CSV of measured forces in newtons (`--column` by header name or 0-based index, else
 the first column) or a normal distribution the user states with `--mean` and `--std`,
 sampled with `--seed` (`--samples` draws, default as many as simulated). No reference
@@ -32,12 +34,12 @@ CDF_PLOT = "force_cdf.png"
 
 
 def simulated_forces(paths, contact_only: bool = False) -> np.ndarray:
-    """All `contact_force_n` samples of the trajectory files at `paths`."""
-    from cathsim_dmc.trajectory import load_trajectories
+    """All wall-force samples (`trajectory.wall_forces_n`: step means) of the trajectory files at `paths`."""
+    from cathsim_dmc.trajectory import load_trajectories, wall_forces_n
 
     if not paths:
         raise ValueError("no trajectory file given")
-    samples = np.concatenate([np.asarray(load_trajectories(p)["contact_force_n"], dtype=float).ravel() for p in paths])
+    samples = np.concatenate([wall_forces_n(load_trajectories(p)).ravel() for p in paths])
     if contact_only:
         samples = samples[samples > 0.0]
     if samples.size == 0:

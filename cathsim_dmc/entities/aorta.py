@@ -25,6 +25,27 @@ from cathsim_dmc import geom_groups
 from cathsim_dmc.paths import resolve_asset
 
 
+def moved_outward(pieces, distance_m: float) -> tuple:
+    """Wall prisms moved `distance_m` outward, away from the lumen.
+
+    A prism is 6 points: a lumen triangle, then the same triangle offset outward along
+    its vertex normals (`anatomy.extrude_prisms`); each point moves along its vertex's
+    normal. Neighbouring prisms share their points and normals, so they stay joined.
+    Pieces of another shape are returned as they are.
+    """
+    if distance_m == 0:
+        return tuple(pieces)
+    moved = []
+    for piece in pieces:
+        piece = np.asarray(piece, dtype=np.float64)
+        if len(piece) == 6:
+            normals = piece[3:] - piece[:3]
+            normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+            piece = piece + distance_m * np.vstack([normals, normals])
+        moved.append(piece)
+    return tuple(moved)
+
+
 class Aorta(composer.Entity):
     """Vessel anatomy: wall collision pieces, one visual mesh, sites and centerlines."""
 
@@ -37,6 +58,7 @@ class Aorta(composer.Entity):
         rgba: tuple = (0.85, 0.45, 0.45, 0.35),  # see-through, so the wire inside is visible
         name: str | None = None,
         hulls_in_mjcf: bool = True,
+        contact_margin_m: float = 1e-3,  # see below: the seam artefact then needs a wire 1.45 mm deep
     ):
         """Builds the anatomy.
 
@@ -53,12 +75,30 @@ class Aorta(composer.Entity):
             (works with any composer environment). False leaves them to `add_geoms`,
             which an environment must call on the scene's spec before compiling (as
             `NavigationEnvironment` does); a physics without them raises at reset.
+          contact_margin_m: contact margin of the wall pieces, in metres. The pieces
+            are moved outward by the same distance (`wall_pieces`), so the contact
+            constraint still starts on the lumen surface, but the convex pieces lie this
+            far behind it. A wire that sinks into the wall (a contact appears up to one
+            step's travel deep) then meets a rounded surface, not the pieces' seams:
+            without the margin, a segment more than its radius deep at a seam between
+            two pieces got the seam's side faces as contact normals, opposite to each
+            other, and the solver pushed them against each other (3,568 N of contact
+            force on a 12 N load in one physics step; see docs/model.md, "Contact
+            forces"). With the margin a segment must sink more than its radius plus the
+            margin (1.45 mm) for that; the deepest wall contact measured was 0.78 mm. The
+            moved pieces' constraint surface follows the lumen within 0.2 mm (it is
+            rounded at ridges, and a face moves back by less than the margin where its
+            vertex normals lean off it). 0 keeps the pieces where the asset has them.
         """
         self._asset: AortaAsset = load_asset(resolve_asset(asset))
         self._mjcf_root = mjcf.RootElement(model=name or self._asset.name)
         root = self._mjcf_root
+        if not contact_margin_m >= 0:
+            raise ValueError(f"contact_margin_m={contact_margin_m!r} must be >= 0 (metres)")
+        self.contact_margin_m = float(contact_margin_m)
         self._wall = dict(
-            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, condim=3, margin=0,
+            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, condim=3,
+            margin=self.contact_margin_m,
             friction=[friction, 0.005, 0.0001], solref=list(solref), solimp=list(solimp),
             group=geom_groups.COLLISION, rgba=[0.5, 0.5, 0.5, 0.3],
         )
@@ -67,7 +107,7 @@ class Aorta(composer.Entity):
         body = root.worldbody
         if self.hulls_in_mjcf:
             root.default.geom.set_attributes(**self._wall)
-            for i, hull in enumerate(self._asset.hulls):
+            for i, hull in enumerate(self.wall_pieces):
                 mesh = root.asset.add("mesh", name=f"hull{i}", vertex=np.asarray(hull, dtype=float).ravel())
                 body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
             visual = root.asset.add(
@@ -107,7 +147,7 @@ class Aorta(composer.Entity):
             for key, value in settings.items():
                 setattr(geom, key, value)
 
-        for i, hull in enumerate(self._asset.hulls):
+        for i, hull in enumerate(self.wall_pieces):
             add(f"hull{i}", hull, None, self._wall)
         # As in the MJCF path, the visual geom inherits the wall's settings but draws only.
         add("lumen", self._asset.visual_vertices, self._asset.visual_faces, {**self._wall, **self._visual})
@@ -116,7 +156,10 @@ class Aorta(composer.Entity):
     def geoms_key(self) -> bytes:
         """Identifies what `add_geoms` adds (for caching compiled models)."""
         asset = self._asset
-        return b"".join([repr((self._wall, self._visual)).encode(), asset.hull_vertices.tobytes(),
+        # The pieces as simulated (moved by the margin), so that a change in how they are
+        # moved never reuses a stale compiled model.
+        pieces = np.concatenate(self.wall_pieces) if self.wall_pieces else np.zeros((0, 3))
+        return b"".join([repr((self._wall, self._visual)).encode(), pieces.tobytes(),
                          asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
 
     def initialize_episode(self, physics, random_state):
@@ -128,6 +171,17 @@ class Aorta(composer.Entity):
     @property
     def asset(self) -> AortaAsset:
         return self._asset
+
+    @composer.cached_property
+    def wall_pieces(self) -> tuple:
+        """The wall's convex pieces as simulated, each a (k, 3) array in metres.
+
+        The asset's prisms (a lumen triangle, then the same triangle offset outward
+        along its vertex normals) moved outward along those normals by
+        `contact_margin_m`. Neighbouring prisms share their vertices and normals, so the
+        moved wall has no gaps either. Pieces of another shape are kept as they are.
+        """
+        return moved_outward(self._asset.hulls, self.contact_margin_m)
 
     @property
     def name(self) -> str:

@@ -184,7 +184,8 @@ def _callbacks():
         def _on_step(self) -> bool:
             infos, dones = self.locals["infos"], self.locals["dones"]
             for i, (info, done) in enumerate(zip(infos, dones)):
-                self._force_sum[i] += info.get("contact_force_n", 0.0)
+                # The step's wall force averaged over its physics steps, as the metrics read it.
+                self._force_sum[i] += info.get("mean_contact_force_n", 0.0)
                 self._steps[i] += 1
                 if done:
                     self._successes.append(float(info.get("success", False)))
