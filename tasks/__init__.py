@@ -11,10 +11,9 @@ from pathlib import Path
 
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
-from cathsim_dmc.checks import check_number
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.registry import TARGETS, all_tasks
-from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate
+from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate, check_options
 
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
@@ -42,28 +41,6 @@ def validate(task: str, aorta: str, obs: str = "internal") -> None:
             f"aorta={aorta!r} is not a shipped aorta or an asset folder; choose one of {list(aorta_choices())}")
     if obs not in OBSERVATION_PRESETS:
         raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
-
-
-def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
-                  progress_weight=None, aim_weight=None, **_others) -> None:
-    """ValueError naming the parameter for a task setting the task cannot use.
-
-    `build_task` calls it before building anything; the command-line tools call it on
-    their config before any work. A zero success radius would make MuJoCo fail on a
-    zero-size marker, and `max_steps=0` would end every episode after one step.
-    """
-    if delta_m is not None:
-        check_number("delta_m", delta_m, 0.0, inclusive=False)
-    if max_steps is not None:
-        check_number("max_steps", max_steps, 1, whole=True)
-    if success_reward is not None:
-        check_number("success_reward", success_reward)
-    if insertion_limit_margin_m is not None:  # metres past the target's centerline length
-        check_number("insertion_limit_margin_m", insertion_limit_margin_m, 0.0)
-    if progress_weight is not None:
-        check_number("progress_weight", progress_weight, 0.0)
-    if aim_weight is not None:
-        check_number("aim_weight", aim_weight, 0.0)
 
 
 def build_task(

@@ -11,6 +11,7 @@ from dm_control.mujoco import wrapper
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import model_cache
+from cathsim_dmc.checks import check_number
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
@@ -34,6 +35,28 @@ AIM_LOOKAHEAD_RADII = 1.5
 AIM_FULL_OFF_AXIS = 0.5
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
+
+
+def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
+                  progress_weight=None, aim_weight=None, **_others) -> None:
+    """ValueError naming the parameter for a task setting the task cannot use.
+
+    `Navigate` checks its own arguments with it; `build_task` and the command-line tools
+    call it before building anything. A zero success radius would make MuJoCo fail on a
+    zero-size marker, and `max_steps=0` would end every episode after one step.
+    """
+    if delta_m is not None:
+        check_number("delta_m", delta_m, 0.0, inclusive=False)
+    if max_steps is not None:
+        check_number("max_steps", max_steps, 1, whole=True)
+    if success_reward is not None:
+        check_number("success_reward", success_reward)
+    if insertion_limit_margin_m is not None:  # metres past the target's centerline length
+        check_number("insertion_limit_margin_m", insertion_limit_margin_m, 0.0)
+    if progress_weight is not None:
+        check_number("progress_weight", progress_weight, 0.0)
+    if aim_weight is not None:
+        check_number("aim_weight", aim_weight, 0.0)
 
 
 @dataclass
@@ -115,6 +138,9 @@ class Navigate(composer.Task):
         self._guidewire = guidewire
         self._robot = robot
         self._target_name = target
+        check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
+                      insertion_limit_margin_m=insertion_limit_margin_m, progress_weight=progress_weight,
+                      aim_weight=aim_weight)
         self._delta_m = float(delta_m)
         self._success_reward = float(success_reward)
         self._dense = bool(dense)
@@ -125,12 +151,6 @@ class Navigate(composer.Task):
         self._settings = observations
         if reward not in REWARDS:
             raise ValueError(f"reward={reward!r}; choose one of {list(REWARDS)}")
-        if not np.isfinite(progress_weight) or progress_weight < 0:
-            raise ValueError(f"progress_weight={progress_weight!r} must be a finite number >= 0")
-        if not np.isfinite(aim_weight) or aim_weight < 0:
-            raise ValueError(f"aim_weight={aim_weight!r} must be a finite number >= 0")
-        if insertion_limit_margin_m is not None and not insertion_limit_margin_m >= 0:
-            raise ValueError(f"insertion_limit_margin_m={insertion_limit_margin_m!r} must be >= 0 (metres) or None")
         unknown = sorted(set(extra_observations) - set(EXTRA_OBSERVATIONS))
         if unknown:
             raise ValueError(f"extra_observations {unknown} unknown; choose from {list(EXTRA_OBSERVATIONS)}")
