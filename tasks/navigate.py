@@ -425,7 +425,11 @@ class Navigate(composer.Task):
         line = self._paths.lines[self._target_name]
         tip = self.tip_position_m(physics)
         base = physics.bind(self._guidewire.tip_base_site)
-        s_m = line.locate(tip)[0]
+        # The step's tree location already holds the arc length when the tip is on the
+        # target's line; only a tip in another branch needs locating on that line.
+        name, s_m, _ = self._locate_tip(physics)
+        if name != self._target_name:
+            s_m = line.locate(tip)[0]
         return line.aim_error(tip, base.xpos, base.xmat.reshape(3, 3)[:, 2], s_m,
                               AIM_LOOKAHEAD_RADII * line.radius_at(s_m))
 

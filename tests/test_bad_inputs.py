@@ -63,6 +63,7 @@ CLI_CASES = [
     ("train", ["task.max_steps=0"], "max_steps=0", True),
     ("train", ["task.insertion_limit_margin_m=-0.01"], "insertion_limit_margin_m", True),
     ("train", ["reward=aim", "reward.aim_weight=-2"], "aim_weight=-2", True),
+    ("train", ["algo.actor_average_tau=2"], "actor_average_tau", True),
     ("train", ["demos.episodes=1", "demos.share=1.5"], "demo_share", False),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
     ("train", ["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"], "algo.buffer_size",

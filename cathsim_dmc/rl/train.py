@@ -379,6 +379,9 @@ def check_training(algo: dict, trainer: dict) -> None:
     check_number("algo.gamma", algo["gamma"], 0.0)
     if not algo["gamma"] <= 1:
         raise ValueError(f"algo.gamma={algo['gamma']!r} must lie in [0, 1]")
+    tau = check_number("algo.actor_average_tau", algo.get("actor_average_tau") or 0.0, 0.0)
+    if not tau <= 1:
+        raise ValueError(f"algo.actor_average_tau={tau!r} must lie in [0, 1] (0: no average)")
     check_number("trainer.total_timesteps", trainer["total_timesteps"], 1, whole=True)
     check_number("trainer.n_envs", trainer["n_envs"], 1, whole=True)
     check_number("trainer.checkpoint_every", trainer["checkpoint_every"], 0, whole=True)
