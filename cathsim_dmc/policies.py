@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.run_files import POLICY_FILE, load_normalizer, normalizer_path  # noqa: F401  (public here too)
+from cathsim_dmc.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path  # noqa: F401  (public here too)
 
 
 class ForwardPolicy:
@@ -72,7 +72,7 @@ def find_checkpoint(path) -> Path:
         for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
             if candidate.is_file():
                 return candidate
-        zips = sorted(path.glob("**/*.zip"), key=lambda p: p.stat().st_mtime)
+        zips = sorted((p for p in path.glob("**/*.zip") if not is_temporary(p)), key=lambda p: p.stat().st_mtime)
         if zips:
             return zips[-1]
         raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")

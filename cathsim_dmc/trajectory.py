@@ -135,10 +135,10 @@ def wall_forces_n(arrays: dict) -> np.ndarray:
 
 def save_npz(path, arrays: dict, compress: bool = True) -> Path:
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    (np.savez_compressed if compress else np.savez)(tmp, **arrays)
-    tmp.replace(path)  # atomic: a reader never sees half a file
-    return path
+    from cathsim_dmc.run_files import write_atomic
+
+    # Atomic, under a name no reader's pattern matches: a reader never sees half a file.
+    return write_atomic(path, lambda tmp: (np.savez_compressed if compress else np.savez)(tmp, **arrays))
 
 
 def _stored(value) -> np.ndarray:

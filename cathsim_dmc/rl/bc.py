@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -162,15 +161,14 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
 def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None = None, extra: dict | None = None,
            frames: int = 1) -> Path:
     """bc_policy.pt (weights + shape) and policy.json (how to evaluate it); atomic writes."""
-    from cathsim_dmc.run_files import POLICY_FILE
+    from cathsim_dmc.run_files import POLICY_FILE, write_atomic
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / BC_CHECKPOINT
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim,
-                "image_key": image_key, "frames": int(frames)}, tmp)
-    os.replace(tmp, path)
+    state = {"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim,
+             "image_key": image_key, "frames": int(frames)}
+    write_atomic(path, lambda tmp: torch.save(state, tmp))
     info = {"algo": "bc", "obs": PRESET_FOR_IMAGE[image_key], "image_key": image_key,
             "image_options": dict(image_options or {}), **(extra or {})}
     (run_dir / POLICY_FILE).write_text(json.dumps(info, indent=2))

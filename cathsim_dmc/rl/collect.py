@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from cathsim_dmc.rl.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
+from cathsim_dmc.run_files import remove_temporaries, write_atomic
 from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder
 
 log = logging.getLogger("cathsim-collect")
@@ -151,9 +152,7 @@ def _write_manifest(out_dir: Path, settings: dict, shards: list) -> dict:
         "episodes": sum(s["episodes"] for s in shards), "samples": sum(s["samples"] for s in shards),
         "successes": sum(s["successes"] for s in shards), "shards": shards,
     }
-    tmp = out_dir / (MANIFEST + ".tmp")
-    tmp.write_text(json.dumps(manifest, indent=2))
-    tmp.replace(out_dir / MANIFEST)
+    write_atomic(out_dir / MANIFEST, lambda tmp: tmp.write_text(json.dumps(manifest, indent=2)))
     return manifest
 
 
@@ -196,6 +195,7 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
                 raise ValueError(f"{out_dir} holds a dataset collected with {key}={old.get(key)!r}, not "
                                  f"{settings[key]!r}; continue it with the same settings or choose another out folder")
     out_dir.mkdir(parents=True, exist_ok=True)
+    remove_temporaries(out_dir)  # half-written shards of a killed collection
 
     counts = [min(episodes_per_shard, episodes - first) for first in range(0, episodes, episodes_per_shard)]
     done = {}

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cathsim_dmc.run_files import is_temporary
 from cathsim_dmc.trajectory import SCHEMA_VERSION
 
 MANIFEST = "manifest.json"  # a cathsim-collect dataset's description (rl/collect.py)
@@ -38,7 +39,8 @@ def expand_paths(paths) -> list:
         if path.is_file():
             files.append(path)
         elif path.is_dir():
-            found = _manifest_shards(path) or sorted(path.glob(SHARD_GLOB)) or sorted(path.glob("trajectories.npz"))
+            found = _manifest_shards(path) or sorted(p for p in path.glob(SHARD_GLOB) if not is_temporary(p)) \
+                or sorted(path.glob("trajectories.npz"))
             if not found:
                 raise FileNotFoundError(f"{path} holds no dataset ({SHARD_GLOB} or trajectories.npz); "
                                         f"collect one with cathsim-collect")

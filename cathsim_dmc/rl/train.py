@@ -10,6 +10,7 @@ import json
 import logging
 import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,9 @@ import numpy as np
 
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.zip"
-REPLAY_BUFFER = "replay_buffer.pkl"
+REPLAY_BUFFER_FORMAT = "replay_buffer_step_{}.pkl"  # saved with the checkpoint of that step
+REPLAY_BUFFER_GLOB = "replay_buffer_step_*.pkl"
+LEGACY_REPLAY_BUFFER = "replay_buffer.pkl"  # before 2026-11-25: one file, its step not recorded
 FINAL_MODEL = "final_model.zip"
 log = logging.getLogger("cathsim-train")
 BEST_MODEL = "best.zip"  # the checkpoint with the best periodic deterministic evaluation
@@ -115,8 +118,15 @@ def grow_replay_buffer(model, capacity: int) -> None:
     old = model.replay_buffer
     if old is None or old.buffer_size * old.n_envs >= capacity:
         return
+    from cathsim_dmc.rl.demos import DemoReplayBuffer
+
+    with_demos = isinstance(old, DemoReplayBuffer)
+    # A DemoReplayBuffer keeps its demonstrations (a buffer of their own) and its batch share.
+    extra = dict(demo_share=old.demo_share, demo_capacity=1) if with_demos else {}
     new = type(old)(capacity, old.observation_space, old.action_space, device=old.device, n_envs=old.n_envs,
-                    handle_timeout_termination=old.handle_timeout_termination)
+                    handle_timeout_termination=old.handle_timeout_termination, **extra)
+    if with_demos:
+        new.demos = old.demos
     rows = old.buffer_size if old.full else old.pos
     for name in ("observations", "next_observations"):
         source, target = getattr(old, name), getattr(new, name)
@@ -129,6 +139,17 @@ def grow_replay_buffer(model, capacity: int) -> None:
         getattr(new, name)[:rows] = getattr(old, name)[:rows]
     new.pos, new.full = rows, False
     model.replay_buffer, model.buffer_size = new, capacity
+
+
+def check_replay_buffer_step(buffer, step: int, source) -> None:
+    """RuntimeError if `buffer` cannot hold the transitions of a run at `step` environment
+    steps: every step stores one transition per environment, so a buffer that has not
+    wrapped around holds exactly step / n_envs rows."""
+    rows = buffer.buffer_size if buffer.full else buffer.pos
+    if buffer.full and rows * buffer.n_envs <= step or not buffer.full and rows * buffer.n_envs == step:
+        return
+    raise RuntimeError(f"{source} holds {rows * buffer.n_envs:,} transitions{' (full)' if buffer.full else ''}, "
+                       f"not the {step:,} of the checkpoint it was saved with; delete it to resume with an empty one")
 
 
 # -- model -------------------------------------------------------------------------
@@ -213,9 +234,13 @@ def _callbacks():
             self._last = self.num_timesteps
 
         def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_end(self) -> None:
+            # Here, not in _on_step: SB3 stores a step's transition after _on_step, so a
+            # checkpoint taken there would hold one transition fewer than its step count.
             if self.every > 0 and self.num_timesteps - self._last >= self.every:
                 self.save()
-            return True
 
         def save(self):
             self._last = self.num_timesteps
@@ -305,11 +330,9 @@ def _callbacks():
 
 
 def _atomic(path: Path, write) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    # SB3 appends .zip when the name lacks it.
-    written = tmp if tmp.exists() else tmp.with_name(tmp.name + ".zip")
-    os.replace(written, path)
+    from cathsim_dmc.run_files import write_atomic
+
+    write_atomic(path, write)
 
 
 def save_model(model, path: Path) -> None:
@@ -322,21 +345,83 @@ def save_model(model, path: Path) -> None:
     _atomic(path, lambda tmp: model.save(tmp))
 
 
+def replay_buffer_path(folder: Path, step: int) -> Path:
+    """The replay buffer saved with the checkpoint of `step`."""
+    return Path(folder) / REPLAY_BUFFER_FORMAT.format(int(step))
+
+
+def _replay_buffer_steps(folder: Path) -> dict:
+    """step -> path of every replay buffer file in `folder`."""
+    found = {}
+    for path in Path(folder).glob(REPLAY_BUFFER_GLOB):
+        digits = path.stem.rsplit("_", 1)[-1]
+        if digits.isdigit():
+            found[int(digits)] = path
+    return found
+
+
+def checkpoint_step(path: Path) -> int:
+    """The environment steps an SB3 checkpoint had taken, read without loading it."""
+    with zipfile.ZipFile(path) as archive:
+        return int(json.loads(archive.read("data"))["num_timesteps"])
+
+
 def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
-    """step_<n>.zip and last.zip (same content), replay_buffer.pkl optional; atomic."""
+    """One checkpoint of `model` at its current step n: step_<n>.zip, then last.zip (the
+    same content), and before them, optionally, replay_buffer_step_<n>.pkl. Returns last.zip.
+
+    Every file is written atomically, and last.zip is written last: it commits the
+    checkpoint. A process killed at any point leaves last.zip at the previous step with
+    that step's replay buffer still on disk (an older buffer is deleted only after the new
+    last.zip is in place), so `resume_checkpoint` always finds a matching pair.
+    """
     from cathsim_dmc.run_files import normalizer_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    last = folder / LAST_CHECKPOINT
-    save_model(model, last)
-    step_file = folder / f"step_{model.num_timesteps}.zip"
-    if normalizer_path(last).is_file():
-        _atomic(normalizer_path(step_file), lambda tmp: tmp.write_bytes(normalizer_path(last).read_bytes()))
-    _atomic(step_file, lambda tmp: tmp.write_bytes(last.read_bytes()))
+    step = int(model.num_timesteps)
     if replay_buffer:
-        _atomic(folder / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
+        _atomic(replay_buffer_path(folder, step), lambda tmp: model.save_replay_buffer(tmp))
+    step_file = folder / f"step_{step}.zip"
+    save_model(model, step_file)
+    last = folder / LAST_CHECKPOINT
+    if normalizer_path(step_file).is_file():
+        _atomic(normalizer_path(last), lambda tmp: tmp.write_bytes(normalizer_path(step_file).read_bytes()))
+    _atomic(last, lambda tmp: tmp.write_bytes(step_file.read_bytes()))
+    for old_step, path in _replay_buffer_steps(folder).items():
+        if old_step != step or not replay_buffer:
+            path.unlink(missing_ok=True)
+    (folder / LEGACY_REPLAY_BUFFER).unlink(missing_ok=True)
     return last
+
+
+def resume_checkpoint(folder: Path) -> tuple:
+    """(last.zip, its step, the replay buffer saved with it or None) of a checkpoint folder.
+
+    Removes what a killed run left half-done (temporary files, a replay buffer newer than
+    last.zip), and refuses, naming the files, a replay buffer that cannot belong to
+    last.zip: resuming with it would pair the weights of one step with the data of another.
+    """
+    from cathsim_dmc.run_files import remove_temporaries
+
+    folder = Path(folder)
+    last = folder / LAST_CHECKPOINT
+    if not last.is_file():
+        raise FileNotFoundError(f"nothing to resume: no {LAST_CHECKPOINT} in {folder}")
+    remove_temporaries(folder)
+    step = checkpoint_step(last)
+    buffers = _replay_buffer_steps(folder)
+    for newer in [s for s in buffers if s > step]:  # written by a checkpoint that was never committed
+        buffers.pop(newer).unlink()
+    if step in buffers:
+        return last, step, buffers[step]
+    if buffers:
+        found = ", ".join(p.name for p in buffers.values())
+        raise RuntimeError(f"{last} is at step {step} but the replay buffer in {folder} ({found}) is not; "
+                           f"delete the buffer to resume with an empty one")
+    # An older run's single file: its step is checked from its contents once loaded.
+    legacy = folder / LEGACY_REPLAY_BUFFER
+    return last, step, legacy if legacy.is_file() else None
 
 
 def _elapsed_before(run_dir) -> float:
@@ -408,22 +493,24 @@ def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_
                       env_options: dict | None = None, normalize_observations: bool = False) -> None:
     """policy.json: what evaluating the checkpoint needs (observation preset, image options,
     and the environment options it was trained with that change what it sees or drives)."""
-    from cathsim_dmc.run_files import POLICY_FILE
+    from cathsim_dmc.run_files import POLICY_FILE, write_atomic
 
     info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta,
             "env_options": dict(env_options or {}), "normalize_observations": bool(normalize_observations)}
-    (Path(run_dir) / POLICY_FILE).write_text(json.dumps(info))
+    write_atomic(Path(run_dir) / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info)))
 
 
 def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
           resume: bool = False, make_eval_env=None, image_options: dict | None = None,
-          demos: dict | None = None, make_demo_env=None, env_options: dict | None = None) -> TrainResult:
+          demos: dict | None = None, make_demo_env=None, env_options: dict | None = None,
+          callbacks: list | None = None) -> TrainResult:
     """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"].
 
     With `demos` (`episodes` > 0), `make_demo_env()` builds an environment like the
     training one in which the scripted expert records that many episodes; they are mixed
     into every batch, and the actor and critic may be pre-trained on them first
-    (`pretrain_actor_steps`, `critic_warmup_steps`).
+    (`pretrain_actor_steps`, `critic_warmup_steps`). `callbacks` (SB3 callbacks) run after
+    the built-in ones (episode statistics, checkpoints, periodic evaluation, progress bar).
     """
     import torch
     from stable_baselines3.common.callbacks import CallbackList
@@ -432,6 +519,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
 
     check_training(algo, trainer)
     run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
     if trainer.get("torch_threads"):
         torch.set_num_threads(int(trainer["torch_threads"]))
     total = int(trainer["total_timesteps"])
@@ -445,17 +533,23 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     check_replay_memory(env.observation_space, env.action_space.shape[0], capacity + demo_capacity)
     tb_dir = str(run_dir / "tensorboard")
     ckpt_dir = run_dir / CHECKPOINT_DIR
-    if trainer.get("normalize_observations"):
-        env = normalize_observations(env, ckpt_dir / LAST_CHECKPOINT if resume else None)
     if resume:
-        last = ckpt_dir / LAST_CHECKPOINT
-        if not last.is_file():
-            raise FileNotFoundError(f"nothing to resume: no {CHECKPOINT_DIR}/{LAST_CHECKPOINT} in {run_dir}")
+        last, step, buffer_file = resume_checkpoint(ckpt_dir)
+    if trainer.get("normalize_observations"):
+        # The normaliser of step_<n>.zip, written before last.zip, is the one that matches it.
+        env = normalize_observations(env, ckpt_dir / f"step_{step}.zip" if resume else None)
+    if resume:
         model = SACfD.load(last, env=env, device=trainer["device"], tensorboard_log=tb_dir)
-        if (ckpt_dir / REPLAY_BUFFER).is_file():
-            model.load_replay_buffer(ckpt_dir / REPLAY_BUFFER)
+        if buffer_file is not None:
+            model.load_replay_buffer(buffer_file)
+            check_replay_buffer_step(model.replay_buffer, step, buffer_file)
+        elif trainer["save_replay_buffer"]:
+            log.warning("no replay buffer was saved with %s (step %d): continuing with an empty one", last, step)
         grow_replay_buffer(model, capacity)
     else:
+        from cathsim_dmc.run_files import remove_temporaries
+
+        remove_temporaries(ckpt_dir)
         model = build_sac(env, algo, seed, trainer["device"], tb_dir, demos if _use_demos(demos) else None)
         write_policy_file(run_dir, obs, task, aorta, image_options, env_options,
                           bool(trainer.get("normalize_observations")))
@@ -463,7 +557,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume)
     EpisodeStats, Checkpoints, Progress, PeriodicEval = _callbacks()
     checkpoints = Checkpoints(run_dir, trainer["checkpoint_every"], trainer["save_replay_buffer"])
-    callbacks = [EpisodeStats(), checkpoints]
+    extra_callbacks, callbacks = list(callbacks or []), [EpisodeStats(), checkpoints]
     if trainer.get("eval_every", 0) > 0 and make_eval_env is not None:
         # Selection episodes are seeded apart from the final report's (10_000 + seed), so
         # the report is not scored on the episodes the best checkpoint was chosen on.
@@ -471,13 +565,16 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
                                       run_dir=run_dir))
     if trainer.get("progress_bar", True):
         callbacks.append(Progress(total))
+    callbacks.extend(extra_callbacks)
     start_steps, t0 = model.num_timesteps, time.perf_counter()
     remaining = total - model.num_timesteps
     if remaining > 0:
         model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), log_interval=1,
                     tb_log_name="sac", reset_num_timesteps=not resume)
     seconds = time.perf_counter() - t0
-    save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
+    last = ckpt_dir / LAST_CHECKPOINT
+    if not last.is_file() or checkpoint_step(last) != model.num_timesteps:  # not saved at this step already
+        save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
     save_model(model, run_dir / FINAL_MODEL)
     return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
 
