@@ -75,6 +75,13 @@ CLI_CASES = [
     ("collect", ["seed=abc"], "seed='abc'", True),
     ("collect", ["out={tmp}/a_file.npz"], "a_file.npz", True),
     ("collect", ["out={tmp}/data"], "manifest.json", True),  # {tmp}/data/manifest.json is corrupt
+    # any tool: what Hydra itself refuses (it would print several lines and exit 1)
+    ("train", ["trainer.totl_timesteps=5"], "trainer.totl_timesteps", True),
+    ("eval", ["seed=[1"], "seed=[1", True),
+    ("bench", ["hydra/launcher=nope"], "nope", True),
+    # cathsim-forcecheck (more cases: test_forcecheck.py)
+    ("forcecheck", ["mean_n=1", "std_n=1"], "trajectories=", True),
+    ("forcecheck", ["trajectories={tmp}/a_file.npz", "mean_n=abc", "std_n=1"], "mean_n='abc'", True),
 ]
 
 

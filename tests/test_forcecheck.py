@@ -63,17 +63,31 @@ def _cli(tmp_path, *args):
                           capture_output=True, text=True, cwd=tmp_path)
 
 
-@pytest.mark.parametrize("case", ["missing_file", "empty_trajectory", "empty_csv", "no_reference", "bad_std"])
+def test_cli_takes_hydra_overrides_and_writes_the_report(simulated, tmp_path):
+    run = _cli(tmp_path, f"trajectories=[{simulated},{simulated}]", "mean_n=0.5", "std_n=0.2", "contact_only=true",
+               f"out={tmp_path / 'out'}")
+    assert run.returncode == 0, run.stderr[-2000:]
+    result = json.loads((tmp_path / "out" / RESULT_JSON).read_text())
+    assert result["contact_only"] and len(result["trajectories"]) == 2
+    assert result["reference_source"].startswith("normal, mean 0.5 N, std 0.2 N")
+    assert (tmp_path / "out" / CDF_PLOT).is_file() and "Mann-Whitney" in run.stdout
+
+
+@pytest.mark.parametrize("case", ["missing_file", "empty_trajectory", "empty_csv", "no_reference", "bad_std",
+                                  "no_trajectories", "mean_not_a_number", "unknown_column"])
 def test_bad_input_is_one_line_and_exit_2(case, simulated, tmp_path):
     empty_csv = tmp_path / "empty.csv"
     empty_csv.write_text("force_n\n")
     args = {
-        "missing_file": [tmp_path / "nope.npz", "--mean", 1, "--std", 1],
-        "empty_trajectory": [_trajectory(tmp_path / "empty.npz", []), "--mean", 1, "--std", 1],
-        "empty_csv": [simulated, "--reference", empty_csv],
-        "no_reference": [simulated],
-        "bad_std": [simulated, "--mean", 1, "--std", 0],
+        "missing_file": [f"trajectories={tmp_path / 'nope.npz'}", "mean_n=1", "std_n=1"],
+        "empty_trajectory": [f"trajectories={_trajectory(tmp_path / 'empty.npz', [])}", "mean_n=1", "std_n=1"],
+        "empty_csv": [f"trajectories={simulated}", f"reference={empty_csv}"],
+        "no_reference": [f"trajectories={simulated}"],
+        "bad_std": [f"trajectories={simulated}", "mean_n=1", "std_n=0"],
+        "no_trajectories": ["mean_n=1", "std_n=1"],
+        "mean_not_a_number": [f"trajectories={simulated}", "mean_n=abc", "std_n=1"],
+        "unknown_column": [f"trajectories={simulated}", f"reference={empty_csv}", "column=nope"],
     }[case]
-    run = _cli(tmp_path, *args, "--out", tmp_path / "out")
+    run = _cli(tmp_path, *args, f"out={tmp_path / 'out'}")
     assert run.returncode == 2
     assert run.stderr.startswith("error: ") and run.stderr.count("\n") == 1, run.stderr

@@ -43,6 +43,35 @@ def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequ
                 fail(f"{key}={item!r} is not valid; choose one of {valid}")
 
 
+def check_composes(config_name: str, argv: Sequence[str]) -> None:
+    """Compose the tool's config with the command line's overrides, as Hydra is about to,
+    and exit with status 2 and one line if that fails: an unknown key, a malformed
+    override, a missing config option. Hydra itself would print several lines and exit 1.
+
+    A sweep (-m) or a Hydra flag (--cfg, --help, ...) is left to Hydra.
+    """
+    if any(arg.startswith("-") for arg in argv):
+        return
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from cathsim_dmc.paths import conf_root
+
+    try:
+        with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3", job_name=config_name):
+            compose(config_name, overrides=list(argv))
+    except (HydraException, OmegaConfBaseException) as error:
+        # Hydra's messages span lines (the problem, a hint, the key again, a link): keep
+        # the problem and the hint.
+        lines = [line.strip().rstrip(".:") for line in str(error).splitlines()]
+        keep = [line for line in lines if line and not line.startswith(("full_key", "object_type", "See https",
+                                                                          "Set the environment"))]
+        message = "; ".join(keep[:4]) if keep else type(error).__name__
+        override = getattr(error, "override", None)  # a malformed key=value names itself
+        fail(f"cannot parse {override!r}: {message}" if override else message)
+
+
 def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
               paths_allowed: Sequence[str] = ()):
     """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
@@ -51,6 +80,7 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
     from cathsim_dmc.paths import conf_root
 
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)
+    check_composes(config_name, sys.argv[1:])
 
     def guarded(cfg):
         # Hydra prints a traceback for exceptions from the task; a bad value in the

@@ -1,32 +1,31 @@
 """cathsim-forcecheck: are simulated contact forces distributed like measured ones?
 
-    cathsim-forcecheck outputs/eval/bca-type1/<run>/trajectories.npz --reference measured.csv --out check
-    cathsim-forcecheck run1/trajectories.npz run2/trajectories.npz --mean 0.3 --std 0.1 --seed 0 --out check
+    cathsim-forcecheck trajectories=[outputs/eval/bca-type1/<run>/trajectories.npz] reference=measured.csv out=check
+    cathsim-forcecheck trajectories=[run1/trajectories.npz,run2/trajectories.npz] mean_n=0.3 std_n=0.1 out=check
 
 The simulated samples are the wall forces of the trajectory files' rows, one per control
 step: the total averaged over the step's physics steps (`mean_contact_force_n`; files
 written before it existed give their end-of-step `contact_force_n`; see
-`cathsim_dmc.trajectory.wall_forces_n`). `--contact-only` keeps the steps with a contact. The reference is either
-a CSV of measured forces in newtons (`--column` by header name or 0-based index, else
-the first column) or a normal distribution the user states with `--mean` and `--std`,
-sampled with `--seed` (`--samples` draws, default as many as simulated). No reference
-values live in this code: they are the user's measurement.
+`cathsim_dmc.trajectory.wall_forces_n`). `contact_only=true` keeps the steps with a
+contact. The reference is either a CSV of measured forces in newtons (`column` by header
+name or 0-based index, else the first column) or a normal distribution the user states
+with `mean_n` and `std_n`, sampled with `seed` (`samples` draws, default as many as
+simulated). No reference values live in this code: they are the user's measurement.
+Options: conf/forcecheck.yaml.
 
 Runs the two-sided Mann-Whitney U test (`scipy.stats.mannwhitneyu`) and writes
-forcecheck.json, forcecheck.md and force_cdf.png (empirical CDFs of both) into `--out`.
+forcecheck.json, forcecheck.md and force_cdf.png (empirical CDFs of both) into `out`.
 Exit status 0 on success, 2 with one `error:` line on bad input.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.cli._common import fail
 
 RESULT_JSON = "forcecheck.json"
 RESULT_MD = "forcecheck.md"
@@ -80,9 +79,9 @@ def measured_forces(csv_path, column: str | None = None) -> np.ndarray:
 def normal_reference(mean_n: float, std_n: float, count: int, seed: int) -> np.ndarray:
     """`count` draws from Normal(mean_n, std_n), the user's summary of a measurement."""
     if not np.isfinite(mean_n) or not np.isfinite(std_n) or std_n <= 0:
-        raise ValueError(f"--std must be positive and both finite (got mean {mean_n}, std {std_n})")
+        raise ValueError(f"std_n={std_n!r} must be positive, and mean_n={mean_n!r} and std_n finite")
     if count < 1:
-        raise ValueError(f"--samples must be at least 1 (got {count})")
+        raise ValueError(f"samples={count!r} must be at least 1")
     return np.random.default_rng(seed).normal(mean_n, std_n, size=count)
 
 
@@ -147,14 +146,14 @@ def force_check(trajectories, out_dir, reference_csv=None, column=None, mean_n=N
                 samples=None, seed: int = 0, contact_only: bool = False, alpha: float = 0.05) -> dict:
     """Compare the trajectories' forces with the reference; write the report into `out_dir`."""
     if (reference_csv is None) == (mean_n is None and std_n is None):
-        raise ValueError("give the reference as --reference CSV or as --mean and --std (one of the two)")
+        raise ValueError("give the reference as reference=<CSV> or as mean_n= and std_n= (one of the two)")
     simulated = simulated_forces(trajectories, contact_only)
     if reference_csv is not None:
         reference = measured_forces(reference_csv, column)
         source = f"measured, {reference_csv}" + (f" column {column}" if column is not None else "")
     else:
         if mean_n is None or std_n is None:
-            raise ValueError("a normal reference needs both --mean and --std")
+            raise ValueError("a normal reference needs both mean_n= and std_n=")
         count = simulated.size if samples is None else int(samples)
         reference = normal_reference(float(mean_n), float(std_n), count, seed)
         source = f"normal, mean {mean_n:g} N, std {std_n:g} N, {count} draws, seed {seed}"
@@ -170,31 +169,34 @@ def force_check(trajectories, out_dir, reference_csv=None, column=None, mean_n=N
     return result
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line and exit 2, like the other tools
-        fail(message)
+def run(cfg) -> dict:
+    from omegaconf import OmegaConf
 
+    from cathsim_dmc.checks import check_number
 
-def main(argv=None):
-    parser = _Parser(prog="cathsim-forcecheck", description=__doc__.split("\n\n")[0])
-    parser.add_argument("trajectories", nargs="+", type=Path, help="trajectories.npz files (cathsim-eval, teleop)")
-    parser.add_argument("--reference", type=Path, help="CSV of measured forces in newtons")
-    parser.add_argument("--column", help="CSV column: header name or 0-based index (default: the first)")
-    parser.add_argument("--mean", type=float, help="mean of a normal reference (N)")
-    parser.add_argument("--std", type=float, help="standard deviation of a normal reference (N)")
-    parser.add_argument("--samples", type=int, help="draws from the normal reference (default: as many as simulated)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the draws")
-    parser.add_argument("--contact-only", action="store_true", help="keep only steps with a contact (force > 0)")
-    parser.add_argument("--alpha", type=float, default=0.05, help="significance level for the verdict line")
-    parser.add_argument("--out", type=Path, default=Path("forcecheck"), help="output folder")
-    args = parser.parse_args(argv)
+    if OmegaConf.is_missing(cfg, "trajectories"):
+        raise ValueError("trajectories= is required: one trajectories.npz or a [list] of them")
+    files = cfg.trajectories if OmegaConf.is_list(cfg.trajectories) else [cfg.trajectories]
+    numbers = {key: None if cfg[key] is None else check_number(key, cfg[key], 0.0)
+               for key in ("mean_n", "std_n", "alpha")}
+    samples = None if cfg.samples is None else check_number("samples", cfg.samples, 1, whole=True)
+    seed = check_number("seed", cfg.seed, 0, whole=True)
+    out = Path(str(cfg.out))
     try:
-        force_check(args.trajectories, args.out, args.reference, args.column, args.mean, args.std, args.samples,
-                    args.seed, args.contact_only, args.alpha)
-    except (ValueError, FileNotFoundError, KeyError) as error:
-        fail(str(error).strip("'\""))
-    print((args.out / RESULT_MD).read_text(), end="")
-    print(f"results in {args.out}")
+        result = force_check([Path(str(f)) for f in files], out, None if cfg.reference is None else Path(cfg.reference),
+                             cfg.column, numbers["mean_n"], numbers["std_n"], samples, seed, bool(cfg.contact_only),
+                             numbers["alpha"])
+    except KeyError as error:  # a CSV column that is not there
+        raise ValueError(str(error).strip("'\"")) from None
+    print((out / RESULT_MD).read_text(), end="")
+    print(f"results in {out}")
+    return result
+
+
+def main():
+    from cathsim_dmc.cli._common import run_hydra
+
+    run_hydra(run, "forcecheck", {})
 
 
 if __name__ == "__main__":
