@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from cathsim_dmc import tasks
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.anatomy import load_asset
+from cathsim_dmc.paths import available_aortas, resolve_asset
 
 
 def test_all_tasks_lists_every_pair():
@@ -34,14 +35,16 @@ def test_task_observations_rewards_and_truncation(task, aorta):
         assert value.dtype == spec[key].dtype, key
     assert spec["pixels"].shape == (80, 80, 1) and spec["pixels"].dtype == np.uint8
     rng = np.random.default_rng(0)
+    target_m = load_asset(resolve_asset(aorta)).sites[task]  # from the asset's files
+    tip = env.physics.bind(env.task.guidewire.tip_site)
     steps = 0
     while not timestep.last():
         timestep = env.step(rng.uniform(-1, 1, 2))
         steps += 1
-        distance = env.task.target_distance_m(env.physics)
-        # Dense reward: minus the distance in metres (the tip starts ~0.2 m away).
-        assert timestep.reward == pytest.approx(-distance)
-        assert -0.5 < timestep.reward < 0
+        # Dense reward: minus the straight-line tip-to-target distance in metres (the tip
+        # starts ~0.2 m away).
+        assert timestep.reward == pytest.approx(-np.linalg.norm(tip.xpos - target_m))
+        assert -0.5 < timestep.reward < -0.1
     assert steps == 5 and timestep.discount == 1.0  # time limit: truncation, not termination
     assert env.task.target_position_m.shape == (3,)
 
