@@ -80,13 +80,14 @@ def test_import_round_trip_of_a_generated_lumen(type1_mm_stl, tmp_path):
     print(report.summary())
     assert report.ok, report.problems
     assert report.holes == 0 and report.max_intrusion_m <= 0.2e-3 and report.min_clearance_m >= PROBE_RADIUS_M
-    # Same anatomy: centerline lengths within 3% of the generator's, the lumen volume within 1%.
+    # Same anatomy: centerline lengths within 1% of the generator's, the lumen volume within
+    # 2% (measured: centerlines 0.2-0.45% shorter, the volume 1.4% smaller).
     for k in src.sites:
         la = np.linalg.norm(np.diff(asset.centerlines[k].points, axis=0), axis=1).sum()
         lb = np.linalg.norm(np.diff(src.centerlines[k].points, axis=0), axis=1).sum()
-        assert abs(la / lb - 1) < 0.03, (k, la, lb)
+        assert abs(la / lb - 1) < 0.01, (k, la, lb)
     vol = lambda a: trimesh.Trimesh(a.visual_vertices.astype(float), a.visual_faces, process=False).volume
-    assert abs(vol(asset) / vol(src) - 1) < 0.05
+    assert abs(vol(asset) / vol(src) - 1) < 0.02, vol(asset) / vol(src)
     # The open end is a flat disc square to the entry direction, a few mm behind the entry.
     oe = asset.meta["open_end"]
     assert 0.002 <= np.dot(asset.entry_position - np.asarray(oe["center"]), asset.entry_direction) <= 0.0051

@@ -44,11 +44,15 @@ def test_loss_terms():
         mean, log_std, _ = net(images)
     nll = -torch.distributions.Normal(mean, log_std.exp()).log_prob(actions).sum(-1).mean()
     assert base.item() == pytest.approx(nll.item(), rel=1e-5)
-    # Entropy is rewarded (lowers the loss), L2 penalised.
+    # Entropy is rewarded (lowers the loss), L2 penalised. The Gaussian's entropy per action
+    # dimension is 1/2 log(2 pi e) + log std; the L2 term is the sum of squared weights.
+    entropy = float(np.log(2 * np.pi * np.e) + log_std[0].sum())
+    l2 = sum(float((m.weight ** 2).sum()) for m in net.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear)))
+    assert terms["entropy"] == pytest.approx(entropy, rel=1e-5) and terms["l2"] == pytest.approx(l2, rel=1e-5)
     with_entropy, _ = bc_loss(net, images, actions, entropy_coef=0.1, l2_coef=0.0)
-    assert with_entropy.item() == pytest.approx(base.item() - 0.1 * terms["entropy"], rel=1e-5)
+    assert with_entropy.item() == pytest.approx(base.item() - 0.1 * entropy, rel=1e-5)
     with_l2, _ = bc_loss(net, images, actions, entropy_coef=0.0, l2_coef=1e-3)
-    assert with_l2.item() == pytest.approx(base.item() + 1e-3 * terms["l2"], rel=1e-5)
+    assert with_l2.item() == pytest.approx(base.item() + 1e-3 * l2, rel=1e-5)
 
 
 def test_student_overfits_a_handful_of_demonstrations():

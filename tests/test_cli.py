@@ -6,6 +6,7 @@ import sys
 
 import imageio.v3 as iio
 import numpy as np
+import pytest
 
 from cathsim_dmc.trajectory import load_trajectories
 
@@ -42,7 +43,16 @@ def test_expert_reaches_the_lcca(tmp_path):
     assert result.returncode == 0, result.stderr
     report = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert report["summary"]["success_pct"]["mean"] == 100
-    assert 0 < report["summary"]["spl_pct"]["mean"] <= 100
+    # SPL from the recorded tip path: the centerline length from the start over the path
+    # travelled. The expert backs off and turns on the way, so it travels farther than
+    # the centerline (docs/results.md: SPL 80 +- 10 on this case).
+    data = load_trajectories(tmp_path / "run" / "trajectories.npz")
+    tips = np.vstack([data["start_tip_position_m"][:1], data["tip_position_m"]])
+    travelled_m = np.linalg.norm(np.diff(tips, axis=0), axis=1).sum()
+    optimal_m = float(data["optimal_path_length_m"][0])
+    assert 0.15 < optimal_m < travelled_m
+    assert report["summary"]["spl_pct"]["mean"] == pytest.approx(100 * optimal_m / travelled_m, rel=1e-6)
+    assert 50 < report["summary"]["spl_pct"]["mean"] < 100
 
 
 def test_multirun_writes_one_combined_table(tmp_path):

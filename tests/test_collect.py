@@ -31,7 +31,7 @@ def test_dataset_round_trip_and_resume(tmp_path):
     assert shard["obs_pixels"].shape == (6, 1, 80, 80) and shard["obs_pixels"].dtype == np.uint8
     assert set(np.unique(shard["obs_guidewire_mask"])) <= {0, 255} and shard["obs_guidewire_mask"].max() == 255
     assert int(shard["first_episode"]) == 2
-    assert shard["mean_contact_force_n"].shape == (6,) and (shard["mean_contact_force_n"] >= 0).all()
+    assert shard["mean_contact_force_n"].shape == (6,)
 
     # Read back across shards: episode ids unique, rows in order.
     arrays = load_arrays([out], ("obs_pixels", "action", "contact_force_n"))

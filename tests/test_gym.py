@@ -106,3 +106,94 @@ def test_invalid_actions_raise_before_physics_and_the_env_stays_usable():
     env.reset()
     assert env.step(np.zeros(2))[1] < 0
     env.close()
+
+
+# SAC as the recipe builds it (a small network: nothing is trained here).
+ALGO = dict(learning_rate=3e-4, buffer_size=400, learning_starts=1000, batch_size=8, tau=0.005, gamma=0.99,
+            train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
+            net_arch=[16], share_features_extractor=False)
+
+
+def _stored_episode(max_steps, seed=0, diverge_at=None):
+    """One scripted-expert episode on the type I LCCA, stepped as SB3's off-policy loop
+    steps it: a DummyVecEnv (which turns terminated/truncated into `done` and
+    `TimeLimit.truncated` and resets) and SAC's own `_store_transition` into the replay
+    buffer training uses. `diverge_at`: blow the state up before that step.
+    Returns the buffer, the number of transitions and the last step's info."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.experts import CenterlineExpert
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
+
+    vec = DummyVecEnv([make_env_fn("lcca", "type1", "internal", seed, {"max_steps": max_steps})])
+    model = build_sac(vec, ALGO, seed, "cpu", None)
+    model._setup_learn(max_steps)  # resets the vector env with `seed`, as learn() does
+    env, expert = vec.envs[0].unwrapped, CenterlineExpert()
+    for step in range(1, max_steps + 1):
+        if step == diverge_at:
+            env.physics.data.qvel[:] = np.nan
+        action = model.policy.scale_action(expert(None, env))[None]
+        new_obs, rewards, dones, infos = vec.step(action)
+        model._store_transition(model.replay_buffer, action, new_obs, rewards, dones, infos)
+        if dones[0]:
+            break
+    vec.close()
+    return model.replay_buffer, step, infos[0]
+
+
+def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success():
+    """SAC's target is r + gamma (1 - done) Q(s'): a time limit or a divergence must be
+    stored as a timeout (done but bootstrapped), reaching the target as terminal, also
+    when the target is reached on the last allowed step."""
+    from cathsim_dmc.rl.demos import expert_transitions
+
+    # The same expert episode (seed 0) as demonstrations, the way training records them,
+    # to find the step on which it reaches the target.
+    demo_env = CathSimEnv("lcca", "type1", obs="internal")
+    demos = expert_transitions(demo_env, episodes=1, seed=0)
+    demo_env.close()
+    reach = len(demos)
+    assert demos.successes == 1 and 20 < reach < 300
+
+    # Success on the last allowed step: terminal, not a timeout.
+    buffer, steps, info = _stored_episode(max_steps=reach)
+    assert steps == reach and info["step"] == reach and info["success"]
+    assert not info["TimeLimit.truncated"]
+    samples = buffer._get_samples(np.arange(steps))
+    assert samples.dones[:, 0].tolist() == [0.0] * (steps - 1) + [1.0]
+    assert samples.rewards[-1, 0] == pytest.approx(10.0)
+    np.testing.assert_allclose(buffer.rewards[:steps, 0], demos.rewards, atol=1e-6)  # the same episode
+
+    # One step less: the time limit ends it one step short of the target. Stored done but
+    # as a timeout, so sampled as not done, with the last state as the next observation
+    # (not the next episode's first).
+    buffer, steps, info = _stored_episode(max_steps=reach - 1)
+    assert steps == reach - 1 and not info["success"] and info["TimeLimit.truncated"]
+    assert buffer.dones[steps - 1, 0] == 1.0 and buffer.timeouts[steps - 1, 0] == 1.0
+    samples = buffer._get_samples(np.arange(steps))
+    assert not samples.dones.any()
+    assert samples.rewards[-1, 0] < 0  # dense: minus the remaining distance
+    np.testing.assert_array_equal(buffer.next_observations["joint_pos"][steps - 1, 0],
+                                  info["terminal_observation"]["joint_pos"])
+    np.testing.assert_allclose(buffer.next_observations["joint_pos"][steps - 1, 0],
+                               demos.next_observations["joint_pos"][steps - 1], atol=1e-5)
+
+    # A divergence truncates: reward 0, a timeout, bootstrapped.
+    buffer, steps, info = _stored_episode(max_steps=300, diverge_at=3)
+    assert steps == 3 and info["diverged"] and not info["success"] and info["TimeLimit.truncated"]
+    assert buffer.rewards[2, 0] == 0.0 and buffer.timeouts[2, 0] == 1.0
+    assert not buffer._get_samples(np.arange(steps)).dones.any()
+
+    # Demonstrations follow the same convention: the expert's success is terminal...
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions
+
+    env = CathSimEnv("lcca", "type1", obs="internal", max_steps=5)
+    buffer = DemoReplayBuffer(10, env.observation_space, env.action_space, device="cpu",
+                              demo_capacity=reach + 5)
+    add_transitions(buffer, demos)
+    assert buffer.demos._get_samples(np.arange(reach)).dones[:, 0].tolist() == [0.0] * (reach - 1) + [1.0]
+    # ... and its time limit is not.
+    add_transitions(buffer, expert_transitions(env, episodes=1, seed=0))
+    env.close()
+    assert buffer.demos.dones[reach + 4, 0] == 1.0 and buffer.demos.timeouts[reach + 4, 0] == 1.0
+    assert not buffer.demos._get_samples(np.arange(reach, reach + 5)).dones.any()

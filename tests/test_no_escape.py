@@ -60,10 +60,12 @@ def test_no_escape_short(aorta):
 def test_divergence_truncates(aorta):
     monitor, env = _run(aorta, random_steps=20, max_steps=0)
     assert monitor.escapes == 0, monitor.message()
-    # A blown-up state ends the episode as a truncation, and the next reset works.
+    # A blown-up state ends the episode as a truncation without a reward (the dense reward
+    # would be minus a distance), and the next reset works.
     env.physics.data.qvel[:] = np.nan
     timestep = env.step(np.array([1.0, 0.0]))
     assert timestep.last() and timestep.discount == 1.0 and env.task.diverged
+    assert timestep.reward == 0.0 and not env.task.success
     env.reset()
     assert env.step(np.array([1.0, 0.0])).mid() and not env.task.diverged
 

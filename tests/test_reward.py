@@ -66,7 +66,7 @@ def _run(env, actions):
     return np.array(rewards), infos
 
 
-def test_progress_reward_pays_for_insertion_and_charges_for_retraction():
+def test_progress_reward_pays_for_insertion_and_charges_for_retraction(tree):
     env = tasks.load("bca", "type1", seed=0, reward="geodesic", progress_weight=1.0)
     env.reset()
     forward, infos = _run(env, [[1.0, 0.0]] * 10)
@@ -75,18 +75,27 @@ def test_progress_reward_pays_for_insertion_and_charges_for_retraction():
     assert np.all(forward > 0.3) and np.all(forward[3:] > 0.5)
     backward, _ = _run(env, [[-1.0, 0.0]] * 5)
     assert np.all(backward[2:] < 0)
-    # The distance term alone matches the task's own geodesic reading.
+    # The distance term alone: minus the larger of the distance along the vessel (on this
+    # test's own centerline tree of the asset) and the straight line, to the asset's site.
     plain = tasks.load("bca", "type1", seed=0, reward="geodesic")
     plain.reset()
-    rewards, infos = _run(plain, [[1.0, 0.0]] * 3)
-    assert rewards[-1] == pytest.approx(-max(infos[-1].path_distance_m, infos[-1].target_distance_m))
+    rewards, _ = _run(plain, [[1.0, 0.0]] * 3)
+    tip = plain.physics.bind(plain.task.guidewire.tip_site).xpos
+    along, straight = tree.geodesic_distance_m(tip, "bca"), np.linalg.norm(tip - _site("bca"))
+    assert rewards[-1] == pytest.approx(-max(along, straight))
+
+
+def _site(name):
+    return load_asset(resolve_asset("type1")).sites[name]
 
 
 def test_euclidean_reward_is_the_papers():
     env = tasks.load("bca", "type1", seed=0)
     env.reset()
-    rewards, infos = _run(env, [[1.0, 0.3]] * 3)
-    assert rewards[-1] == pytest.approx(-infos[-1].target_distance_m)
+    rewards, _ = _run(env, [[1.0, 0.3]] * 3)
+    tip = env.physics.bind(env.task.guidewire.tip_site).xpos
+    assert rewards[-1] == pytest.approx(-np.linalg.norm(tip - _site("bca")))
+    assert rewards[-1] < -0.1  # the tip is still in the descending aorta
 
 
 def test_bad_reward_options_name_the_choices():
@@ -102,7 +111,8 @@ def test_insertion_limit_stops_the_carriage_at_the_path_length_plus_margin():
     env = tasks.load("bca", "type1", seed=0, insertion_limit_margin_m=0.0)
     env.reset()
     limit = env.task.insertion_limit_m
-    assert limit == pytest.approx(env.task.paths.lines["bca"].length_m)
+    points = load_asset(resolve_asset("type1")).centerlines["bca"].points  # entry to the BCA site
+    assert limit == pytest.approx(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
     _, infos = _run(env, [[1.0, 0.0]] * 70)  # 70 x 4 mm would reach 280 mm
     assert max(i.insertion_m for i in infos) <= limit + 1e-3
     assert infos[-1].insertion_m > limit - 5e-3

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from cathsim_dmc import tasks
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.anatomy import load_asset
+from cathsim_dmc.paths import available_aortas, resolve_asset
 
 
 def test_all_tasks_lists_every_pair():
@@ -34,24 +35,46 @@ def test_task_observations_rewards_and_truncation(task, aorta):
         assert value.dtype == spec[key].dtype, key
     assert spec["pixels"].shape == (80, 80, 1) and spec["pixels"].dtype == np.uint8
     rng = np.random.default_rng(0)
+    target_m = load_asset(resolve_asset(aorta)).sites[task]  # from the asset's files
+    tip = env.physics.bind(env.task.guidewire.tip_site)
     steps = 0
     while not timestep.last():
         timestep = env.step(rng.uniform(-1, 1, 2))
         steps += 1
-        distance = env.task.target_distance_m(env.physics)
-        # Dense reward: minus the distance in metres (the tip starts ~0.2 m away).
-        assert timestep.reward == pytest.approx(-distance)
-        assert -0.5 < timestep.reward < 0
+        # Dense reward: minus the straight-line tip-to-target distance in metres (the tip
+        # starts ~0.2 m away).
+        assert timestep.reward == pytest.approx(-np.linalg.norm(tip.xpos - target_m))
+        assert -0.5 < timestep.reward < -0.1
     assert steps == 5 and timestep.discount == 1.0  # time limit: truncation, not termination
     assert env.task.target_position_m.shape == (3,)
 
 
-def test_success_terminates_with_reward_and_zero_discount():
-    # A success radius larger than the anatomy: the first step already succeeds.
-    env = tasks.load("lcca", "type1", obs="internal", seed=0, delta_m=1.0, success_reward=10.0)
+@pytest.mark.parametrize("max_steps", [300, 1])
+def test_success_terminates_with_reward_and_zero_discount(max_steps):
+    # A success radius larger than the anatomy: the first step already succeeds. With
+    # max_steps=1 it is also the last allowed step: a success still, not a time limit.
+    env = tasks.load("lcca", "type1", obs="internal", seed=0, delta_m=1.0, success_reward=10.0, max_steps=max_steps)
     env.reset()
     timestep = env.step(np.zeros(2))
     assert timestep.last() and timestep.reward == 10.0 and timestep.discount == 0.0
+    assert env.task.success and env.task.step_count == 1
+
+
+def test_sparse_reward_is_zero_until_the_target_is_reached():
+    rewards = {}
+    for dense in (True, False):
+        env = tasks.load("lcca", "type1", obs="internal", seed=0, dense=dense, max_steps=4)
+        env.reset()
+        steps = [env.step(np.array([1.0, 0.3])) for _ in range(4)]
+        rewards[dense] = [timestep.reward for timestep in steps]
+        assert steps[-1].last() and steps[-1].discount == 1.0
+    assert rewards[False] == [0.0] * 4
+    assert all(r < -0.1 for r in rewards[True])  # the same steps, dense: minus the ~0.2 m to go
+    # Reaching the target pays the success reward, sparse or not.
+    env = tasks.load("lcca", "type1", obs="internal", seed=0, dense=False, delta_m=1.0, success_reward=7.0)
+    env.reset()
+    timestep = env.step(np.zeros(2))
+    assert timestep.last() and timestep.reward == 7.0 and timestep.discount == 0.0
 
 
 @pytest.mark.parametrize("bad, match", [
