@@ -34,6 +34,9 @@ VARIANTS = {
     # Progress plus aim shaping (reward=aim): turning the bend towards the path is paid for.
     "demos_aim_internal": (["obs=internal", "algo=sac_tuned", "reward=aim", *DEMOS], 20_000),
     "demos_bc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5"], 20_000),
+    "demos_takeover_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
+                                 "demos.takeover_rounds=3", "demos.takeover_episodes=10",
+                                 "demos.takeover_max_student_steps=150"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
     "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean"], 100_000),

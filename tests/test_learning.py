@@ -52,6 +52,21 @@ def test_expert_demonstrations_are_recorded_with_the_training_reward(env):
     np.testing.assert_array_equal(demos.observations["joint_pos"][1:], demos.next_observations["joint_pos"][:-1])
 
 
+def test_takeover_demonstrations_start_where_the_student_left_the_wire(env):
+    from cathsim_dmc.rl.demos import takeover_transitions
+
+    student_action = np.array([0.5, -0.8], np.float32)  # a student that pushes and turns one way
+    demos = takeover_transitions(env, lambda obs: student_action, episodes=2, seed=3, max_student_steps=40)
+    # Only the expert's part is kept: every stored action is the expert's, and the expert
+    # still reaches the target from wherever the student handed over.
+    assert not np.all(demos.actions == student_action, axis=1).any()
+    assert demos.successes == 2 and demos.terminated.sum() == 2 and demos.rewards[demos.terminated].min() == 10.0
+    assert demos.steps_taken > len(demos)  # the student's steps were taken, not kept
+    # Handed over mid-episode: the first kept state is not the start, the insertion the
+    # student made (at 0.5 of full speed) is already there.
+    assert demos.observations["joint_pos"][0, 0] > 0.01
+
+
 def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     from stable_baselines3 import SAC
 

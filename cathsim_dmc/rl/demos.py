@@ -87,6 +87,7 @@ class Transitions:
     truncated: np.ndarray  # cut by the time limit or a divergence
     episodes: int
     successes: int
+    steps_taken: int = 0  # environment steps spent recording them (more than len() if not every step was kept)
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -98,22 +99,68 @@ def expert_transitions(env, episodes: int, seed: int = 0, policy=None) -> Transi
     from cathsim_dmc.experts import CenterlineExpert
 
     policy = policy or CenterlineExpert()
+    return _rollouts(env, episodes, seed, lambda: (lambda obs, env, step: (policy(obs, env), True)))
+
+
+def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200) -> Transitions:
+    """Demonstrations from where the student goes: in each episode `student(observation)`
+    drives for a random number of steps (0 to `max_student_steps`, drawn from `seed`), then
+    the scripted expert takes over to the end of the episode. The expert's part is returned.
+
+    These are DAgger's states (Ross et al., 2011) with the expert's own transitions: the
+    states a student reaches with its own mistakes, which the expert's episodes from the
+    start never visit, each with the expert's action, reward and next state, so that the
+    critic can learn from them as well as the behavioural-cloning term. The student's part
+    is not returned (`Transitions.episodes` counts every episode; the environment steps of
+    both parts are in `Transitions.steps_taken`).
+    """
+    from cathsim_dmc.experts import CenterlineExpert
+
+    expert = CenterlineExpert()
+    rng = np.random.default_rng(seed)
+
+    def episode_policy():
+        handover = int(rng.integers(0, int(max_student_steps) + 1))
+
+        def act(obs, env, step):
+            if step < handover:
+                return student(obs), False
+            if step == handover:
+                expert.reset(env)  # the expert starts afresh from the student's state
+            return expert(obs, env), True
+
+        return act
+
+    return _rollouts(env, episodes, seed, episode_policy)
+
+
+def _rollouts(env, episodes: int, seed: int, make_policy) -> Transitions:
+    """Run `episodes` episodes (seeds `seed`, `seed + 1`, ...); `make_policy()` gives each
+    episode's `act(observation, env, step) -> (action, record)`. Returns the recorded steps."""
     rows = {k: [] for k in ("obs", "next_obs", "action", "reward", "terminated", "truncated")}
-    successes = 0
+    successes = steps_taken = 0
     for episode in range(int(episodes)):
         obs, info = env.reset(seed=seed + episode)
-        done = False
+        act, done, step = make_policy(), False, 0
         while not done:
-            action = np.asarray(policy(obs, env), dtype=np.float32)
+            action, record = act(obs, env, step)
+            action = np.asarray(action, dtype=np.float32)
             next_obs, reward, terminated, truncated, info = env.step(action)
-            for key, value in zip(rows, (obs, next_obs, action, reward, terminated, truncated)):
-                rows[key].append(value)
-            obs, done = next_obs, terminated or truncated
+            if record:
+                for key, value in zip(rows, (obs, next_obs, action, reward, terminated, truncated)):
+                    rows[key].append(value)
+            obs, done, step = next_obs, terminated or truncated, step + 1
         successes += int(info["success"])
+        steps_taken += step
+    if not rows["obs"]:
+        empty = {k: np.zeros((0, *space.shape), space.dtype) for k, space in env.observation_space.spaces.items()}
+        return Transitions(empty, dict(empty), np.zeros((0, *env.action_space.shape), np.float32),
+                           np.zeros(0, np.float32), np.zeros(0, bool), np.zeros(0, bool), int(episodes), successes,
+                           steps_taken)
     stack = lambda dicts: {k: np.stack([d[k] for d in dicts]) for k in dicts[0]}  # noqa: E731
     return Transitions(stack(rows["obs"]), stack(rows["next_obs"]), np.stack(rows["action"]),
                        np.asarray(rows["reward"], dtype=np.float32), np.asarray(rows["terminated"]),
-                       np.asarray(rows["truncated"]), int(episodes), successes)
+                       np.asarray(rows["truncated"]), int(episodes), successes, steps_taken)
 
 
 def add_transitions(buffer: DemoReplayBuffer, transitions: Transitions) -> None:

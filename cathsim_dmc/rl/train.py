@@ -588,7 +588,7 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
     them; each stage is logged with its size, loss and time."""
     from cathsim_dmc.rl.demos import (DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions,
-                                      pretrain_actor, warm_up_critic)
+                                      pretrain_actor, takeover_transitions, warm_up_critic)
 
     buffer = model.replay_buffer
     if not isinstance(buffer, DemoReplayBuffer):
@@ -619,6 +619,30 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]))
             log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
                      int(demos["pretrain_actor_steps"]), loss)
+        rounds = int(demos.get("takeover_rounds") or 0)
+        if rounds > 0:
+            env = make_demo_env()
+            normalizer = model.get_vec_normalize_env()
+
+            def student(observation):
+                if normalizer is not None:
+                    observation = normalizer.normalize_obs(observation)
+                return model.predict(observation, deterministic=True)[0]
+
+            try:
+                for round_index in range(rounds):
+                    t0 = time.perf_counter()
+                    transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
+                                                       seed=40_000 + 1000 * seed + 100 * round_index,
+                                                       max_student_steps=int(demos["takeover_max_student_steps"]))
+                    add_transitions(buffer, transitions)
+                    loss = pretrain_actor(model, int(demos.get("pretrain_actor_steps", 0)) // 2)
+                    log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
+                             "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
+                             transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
+                             loss, time.perf_counter() - t0)
+            finally:
+                env.close()
         if int(demos.get("critic_warmup_steps", 0)) > 0:
             loss = warm_up_critic(model, int(demos["critic_warmup_steps"]))
             log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)
