@@ -8,6 +8,7 @@ Renders draw only what an observation needs: the merged visual mesh of the vesse
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from dm_control import composer
@@ -16,6 +17,7 @@ from dm_control.mujoco.wrapper.core import MjvOption
 
 from cathsim_dmc import _gl, geom_groups, raster
 from cathsim_dmc.checks import check_number
+from cathsim_dmc.paths import conf_root
 
 TOP_CAMERA = "top"
 IMAGE_SIZE = 80  # the paper's 80x80 observation
@@ -34,13 +36,32 @@ class ObservationSettings:
     noise_std: float = 0.0  # Gaussian pixel noise (grey levels), seeded by the environment
 
 
-OBSERVATION_PRESETS = {
-    "internal": ObservationSettings(frozenset({"joint_pos", "joint_vel"})),
-    "pixels": ObservationSettings(frozenset({"pixels"})),
-    "pixels_mask": ObservationSettings(frozenset({"pixels", "guidewire_mask"})),
-    "internal_pixels": ObservationSettings(frozenset({"pixels", "joint_pos", "joint_vel"})),
-    "enn": ObservationSettings(frozenset({"pixels", "guidewire_mask", "joint_pos", "joint_vel"})),
-}
+# What a preset can enable (the task has a few more, enabled one by one as extra observations).
+PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel")
+
+
+def load_presets(folder) -> dict:
+    """name -> ObservationSettings of every preset file in `folder` (conf/obs/*.yaml).
+
+    A preset file is the one definition of its preset, for the command-line tools (Hydra's
+    `obs=` group) and the Python API (`tasks.load(obs=...)`) alike: `name`, the
+    `observables` it enables, and optionally `renderer`, `style`, `image_size`.
+    """
+    import yaml
+
+    presets = {}
+    for path in sorted(Path(folder).glob("*.yaml")):
+        spec = yaml.safe_load(path.read_text()) or {}
+        unknown = sorted(set(spec.get("observables") or ()) - set(PRESET_OBSERVABLES))
+        if spec.get("name") != path.stem or not spec.get("observables") or unknown:
+            raise ValueError(f"{path}: a preset needs name: {path.stem} and observables from "
+                             f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})")
+        options = {key: spec[key] for key in ("renderer", "style", "image_size") if spec.get(key) is not None}
+        presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
+    return presets
+
+
+OBSERVATION_PRESETS = load_presets(conf_root() / "obs")
 
 
 class JointObservables(composer.Observables):
