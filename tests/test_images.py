@@ -136,3 +136,18 @@ def test_seeded_episode_images_are_reproducible():
 def test_bad_image_option_names_the_choices(option):
     with pytest.raises(ValueError, match=next(iter(option))):
         tasks.build_task("bca", "type1", obs="enn", **option)
+
+
+def test_an_observation_preset_is_one_yaml_file_read_by_the_api(tmp_path):
+    from cathsim_dmc.observables import OBSERVATION_PRESETS, load_presets
+    from cathsim_dmc.paths import conf_root
+
+    # The shipped files are what the API uses.
+    assert load_presets(conf_root() / "obs") == OBSERVATION_PRESETS
+    assert OBSERVATION_PRESETS["enn"].enabled == {"pixels", "guidewire_mask", "joint_pos", "joint_vel"}
+    (tmp_path / "mask_fluoro.yaml").write_text("name: mask_fluoro\nobservables: [guidewire_mask]\nstyle: fluoro\n")
+    preset = load_presets(tmp_path)["mask_fluoro"]
+    assert preset.enabled == {"guidewire_mask"} and preset.style == "fluoro" and preset.renderer == "raster"
+    (tmp_path / "bad.yaml").write_text("name: bad\nobservables: [pixels, x_ray_dose]\n")
+    with pytest.raises(ValueError, match=r"bad\.yaml.*unknown: \['x_ray_dose'\]"):
+        load_presets(tmp_path)
