@@ -35,6 +35,8 @@ from typing import Dict, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from cathsim_dmc.anatomy.polyline import polyline_length
+
 FORMAT_VERSION = 1
 META_FILE = "meta.json"
 VISUAL_FILE = "visual.stl"
@@ -357,7 +359,7 @@ def build_asset(params, folder) -> BuildReport:
         pts = arch_lib.path_to_site(model, b)
         # Lumen radius = distance to the wall (the open end is not wall).
         centerlines[b] = (pts, _wall_distance(lumen.vertices, wall, pts))
-        lengths[b] = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+        lengths[b] = polyline_length(pts)
     p = model.params
     tortuosity = model.tortuosity()
     max_diameter = 2.0 * float(model.aorta.radius.max())

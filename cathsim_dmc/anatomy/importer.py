@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
 import pathlib
 import shutil
 import tempfile
@@ -54,6 +53,7 @@ from scipy.sparse import csgraph
 
 from cathsim_dmc.anatomy import mesh as mesh_lib
 from cathsim_dmc.anatomy.asset import _rounded, _wall_distance, write_asset
+from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ostia_from_centerlines, validate_asset
 
 MIN_SITE_DEPTH_M = 0.001
@@ -327,8 +327,8 @@ def _grid_graph(grid: mesh_lib.SDFGrid, clearance: float):
 
 def _smooth_path(raw, v, f, clearance, spacing=0.0015):
     """Gaussian-smoothed polyline (ends kept) with the largest sigma that keeps `clearance` from the wall."""
-    fine = _resample(raw, 0.0005)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(fine, axis=0), axis=1))])
+    fine = resample_polyline(raw, 0.0005)
+    s = arclength(fine)
     depth_raw = mesh_lib.signed_distance(v, f, fine)
     want = min(float(depth_raw.min()), clearance)
     for sigma_m in (0.004, 0.0025, 0.0015, 0.0008, 0.0):
@@ -338,21 +338,10 @@ def _smooth_path(raw, v, f, clearance, spacing=0.0015):
             cand = fine + ramp * (sm - fine)
         else:
             cand = fine
-        out = _resample(cand, spacing)
-        if sigma_m == 0.0 or mesh_lib.signed_distance(v, f, _resample(cand, 0.0005)).min() >= want:
+        out = resample_polyline(cand, spacing)
+        if sigma_m == 0.0 or mesh_lib.signed_distance(v, f, resample_polyline(cand, 0.0005)).min() >= want:
             return out
-    return _resample(fine, spacing)
-
-
-def _resample(points, spacing):
-    points = np.asarray(points, dtype=np.float64)
-    d = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    points = np.concatenate([points[:1], points[1:][d > 1e-12]])
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    n = max(2, int(math.ceil(s[-1] / spacing)) + 1)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
+    return resample_polyline(fine, spacing)
 
 
 def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=PROBE_RADIUS_M):
@@ -401,7 +390,7 @@ def estimate_entry_direction(grid, entry, centerlines) -> np.ndarray:
     axis = vt[0]
     ahead = []
     for pts_c in centerlines.values():
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts_c, axis=0), axis=1))])
+        s = arclength(pts_c)
         ahead.append(pts_c[int(np.searchsorted(s, min(radius, s[-1])))])
     if np.dot(np.mean(ahead, axis=0) - entry, axis) < 0:
         axis = -axis
@@ -624,7 +613,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     prisms = mesh_lib.extrude_prisms(lumen, wall_thickness_m)
     wall = lumen.faces[~lumen.cap]
     cl = {k: (p, _wall_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
-    lengths = {k: float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))) for k, p in centerlines.items()}
+    lengths = {k: polyline_length(p) for k, p in centerlines.items()}
     ostia = ostia_from_centerlines(cl)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     params = {"source": path.name, "source_sha256": digest, "units": units_used,

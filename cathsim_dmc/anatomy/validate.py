@@ -38,6 +38,7 @@ from scipy import spatial
 
 from cathsim_dmc.anatomy import mesh as mesh_lib
 from cathsim_dmc.anatomy.asset import AortaAsset, load_asset
+from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
 
 WIRE_RADIUS_M = 0.000445            # 0.035 in guidewire
 PROBE_RADIUS_M = WIRE_RADIUS_M + 0.0005
@@ -230,7 +231,7 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     names = sorted(centerlines)
     for k in names:
         pts, rad = (np.asarray(a, dtype=np.float64) for a in centerlines[k])
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+        s = arclength(pts)
         tail = s >= s[-1] - 0.010
         r_branch = float(np.median(rad[tail]))
         wide = np.nonzero(rad > 1.4 * r_branch)[0]
@@ -245,14 +246,6 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
             if len(apart) and apart[0] > 0:
                 out[f"{k}/{j}"] = pts[apart[0]]
     return out
-
-
-def _resample(points, spacing):
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    n = max(2, int(np.ceil(s[-1] / spacing)) + 1)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
 
 
 def compile_in_mujoco(asset: AortaAsset) -> float:
@@ -327,7 +320,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
         if "lumen" not in checks:
             clearance[k] = float("nan")
             continue
-        dense = _resample(pts, 0.00025)
+        dense = resample_polyline(pts, 0.00025)
         clearance[k], i = hs.min_distance(dense)
         if clearance[k] < probe_radius_m:
             problems.append(f"centerline {k} passes {clearance[k] * 1e3:.2f} mm from a collision piece at "
