@@ -19,7 +19,8 @@ import trimesh
 from scipy import spatial
 
 from cathsim_dmc.anatomy import (BRANCHES, PRESETS, ArchParams, arch_type_of, build_arch, build_asset, load_asset)
-from cathsim_dmc.anatomy import mesh as mesh_lib
+from cathsim_dmc.anatomy.sdf import signed_distance
+from cathsim_dmc.anatomy.triangles import triangle_quality
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, HullSet, cap_faces, validate_asset
 from cathsim_dmc.paths import available_aortas
 
@@ -49,7 +50,7 @@ def trimesh_of(asset):
 
 def inside_depth(asset, points):
     """Signed distance to the lumen surface, positive inside the lumen."""
-    return mesh_lib.signed_distance(asset.visual_vertices, asset.visual_faces, np.asarray(points, dtype=np.float64))
+    return signed_distance(asset.visual_vertices, asset.visual_faces, np.asarray(points, dtype=np.float64))
 
 
 # ----------------------------------------------------------------------------
@@ -88,7 +89,7 @@ def test_lumen_watertight_outward_and_clean(name):
     assert lumen.is_watertight and lumen.is_winding_consistent
     assert lumen.volume > 0, "faces must be oriented outward"
     assert lumen.euler_number == 2, "one closed surface without handles"
-    q = mesh_lib.triangle_quality(lumen.vertices, lumen.faces[~cap])
+    q = triangle_quality(lumen.vertices, lumen.faces[~cap])
     n_thin = int((q["min_angle"] < 10).sum())
     print(f"\n{name}: {len(lumen.faces)} triangles, edges {q['edge_min'] / MM:.2f}-{q['edge_max'] / MM:.2f} mm "
           f"(mean {q['edge_mean'] / MM:.2f}), min angle {q['min_angle'].min():.1f} deg, {n_thin} below 10 deg")

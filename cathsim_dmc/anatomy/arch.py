@@ -9,7 +9,7 @@ ascending aorta is at x < 0 and ends closed a few centimetres below the arch.
 The model is purely geometric: `build_arch(params)` returns an `ArchModel`
 holding one `Vessel` (dense centerline + radius per point) for the aorta and one
 per branch, plus the landmarks (ostia, sites, entry) that the asset needs.
-`mesh.py` turns the vessels into a lumen surface.
+`sdf.py` and `lumen.py` turn the vessels into a lumen surface.
 """
 
 from __future__ import annotations
@@ -149,12 +149,12 @@ class ArchParams:
     # validation (no holes, no intrusion) and cut the broadphase cost per physics
     # step and the env build time and memory 2-3x (physics probe). 8 mm folded
     # triangles on five of the six presets, 10 mm on type1 too; where an arch
-    # folds one, mesh.build_lumen meshes it again with shorter edges.
+    # folds one, lumen.build_lumen meshes it again with shorter edges.
     edge_length_m: float = 0.007
     # Local refinement: triangles next to edges folded by more than this
     # (narrow branches, the carinas between ostia) are split, up to
     # `refine_levels` times, then the mesh is relaxed on the surface, so that the
-    # wall prisms follow the curvature (modelling choice, see mesh.py). One
+    # wall prisms follow the curvature (modelling choice, see remesh.py). One
     # level takes the worst fold from ~65 to ~33 deg for +3% triangles.
     max_dihedral_deg: float = 25.0
     refine_levels: int = 1

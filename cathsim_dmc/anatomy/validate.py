@@ -36,9 +36,10 @@ from typing import Dict, List, Optional
 import numpy as np
 from scipy import spatial
 
-from cathsim_dmc.anatomy import mesh as mesh_lib
 from cathsim_dmc.anatomy.asset import AortaAsset, load_asset
 from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
+from cathsim_dmc.anatomy.sdf import signed_distance
+from cathsim_dmc.anatomy.triangles import face_normals, vertex_normals
 
 WIRE_RADIUS_M = 0.000445            # 0.035 in guidewire
 PROBE_RADIUS_M = WIRE_RADIUS_M + 0.0005
@@ -293,7 +294,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     rng = np.random.default_rng(seed)
     problems: List[str] = []
     v, f = _lumen_mesh(asset)
-    sd = lambda pts: mesh_lib.signed_distance(v, f, np.asarray(pts, dtype=np.float64))   # + inside
+    sd = lambda pts: signed_distance(v, f, np.asarray(pts, dtype=np.float64))   # + inside
     hs = HullSet(asset.hulls) if hullset is None else hullset
     thickness = asset.wall_thickness_m
     ostia = estimate_ostia(asset)
@@ -374,11 +375,10 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     pick = np.concatenate(pick)
     bary = rng.dirichlet(np.ones(3), size=len(pick))
     base = np.einsum("nk,nkj->nj", bary, tri[pick])
-    vn = mesh_lib.vertex_normals(v, f, ~cap)
+    vn = vertex_normals(v, f, ~cap)
     n_vert = np.einsum("nk,nkj->nj", bary, vn[wall_f[pick]])
     n_vert /= np.maximum(np.linalg.norm(n_vert, axis=1, keepdims=True), 1e-12)
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    fn = face_normals(v, wall_f)
     use_face = rng.random(len(pick)) < 0.5
     normal = np.where(use_face[:, None], fn[pick], n_vert)
     dist = rng.uniform(0.00001, 0.75 * thickness, len(pick))
