@@ -33,8 +33,9 @@ go on:
    the wire comes in and gets no wall;
 8. **wall**: one prism per lumen triangle extruded outward (as generated
    arches);
-9. **validate** (`cathsim_dmc.anatomy.validate`) and only then move the folder
-   into place.
+9. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
+   CLI passes `cathsim_dmc.model_check.validate_and_compile`, which adds the
+   MuJoCo compile) and only then move the folder into place.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_ca
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
                                            triangle_quality)
-from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ostia_from_centerlines, validate_asset
+from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines, validate_asset
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 MIN_SITE_DEPTH_M = 0.001
@@ -85,7 +86,7 @@ class ImportReport:
     entry_direction: np.ndarray
     path_length_m: Dict[str, float]
     seconds: float
-    validation: Optional[object] = None
+    validation: Optional[ValidationReport] = None
 
 
 def _fmt(p, scale=1.0, digits=1):
@@ -508,6 +509,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 entry_direction: Optional[Sequence[float]] = None, units: str = "auto", name: Optional[str] = None,
                 wall_thickness_m: float = 0.002, edge_length_m: Optional[float] = None, remesh="auto",
                 sdf_spacing_m: Optional[float] = None, open_end_depth_m: float = 0.005, validate: bool = True,
+                validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
                 overwrite: bool = False, log: Callable[[str], None] = print) -> ImportReport:
     """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
     t0 = time.perf_counter()
@@ -605,7 +607,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                            "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
                            "ostia": {k: json_rounded(p) for k, p in sorted(ostia.items())},
                            "import": {"repairs": repairs, "notes": notes}})
-        report = validate_asset(tmp) if validate else None
+        report = validator(tmp) if validate else None
         if report is not None and not report.ok:
             raise MeshImportError(f"{path}: the imported asset fails validation: {report.problems[0]}"
                                   f"{f' (and {len(report.problems) - 1} more)' if len(report.problems) > 1 else ''}")

@@ -20,11 +20,12 @@ Checks, each on the files a user loads (visual lumen + collision pieces + meta):
   within `ostium_radius_m` of every ostium) each lie inside some piece or
   inside the lumen; the open end (beyond the plane of ``meta["open_end"]``) is
   the wire's way in and is not wall;
-- **MuJoCo**: the pieces and the visual mesh compile and step.
-
 Ostia come from ``meta["ostia"]`` (the generator writes them) or are estimated
 from the centerlines (where the lumen radius jumps, and where the centerlines
 to different sites part).
+
+No MuJoCo here: `cathsim_dmc.model_check.validate_and_compile` adds the check
+that the pieces and the visual mesh compile and step.
 """
 
 from __future__ import annotations
@@ -160,7 +161,7 @@ class ValidationReport:
     shell_samples: int
     ostium_samples: int
     holes: int
-    compile_seconds: Optional[float]
+    compile_seconds: Optional[float]     # MuJoCo compile (cathsim_dmc.model_check); None: not run or failed
     seconds: float
     problems: List[str]
 
@@ -249,41 +250,16 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     return out
 
 
-def compile_in_mujoco(asset: AortaAsset) -> float:
-    """Compile the pieces and the visual mesh in a bare MuJoCo model, step once; seconds taken."""
-    import mujoco
-
-    meshes, geoms = [], []
-    for i, h in enumerate(asset.hulls):
-        meshes.append(f'<mesh name="w{i}" vertex="{" ".join(f"{x:.9g}" for x in h.ravel())}"/>')
-        geoms.append(f'<geom type="mesh" mesh="w{i}"/>')
-    vv = " ".join(f"{x:.9g}" for x in asset.visual_vertices.ravel())
-    ff = " ".join(str(int(x)) for x in asset.visual_faces.ravel())
-    meshes.append(f'<mesh name="lumen" vertex="{vv}" face="{ff}"/>')
-    geoms.append('<geom type="mesh" mesh="lumen" contype="0" conaffinity="0" group="1"/>')
-    xml = (f"<mujoco><asset>{''.join(meshes)}</asset><worldbody><body name=\"aorta\">"
-           f"{''.join(geoms)}</body></worldbody></mujoco>")
-    t0 = time.perf_counter()
-    model = mujoco.MjModel.from_xml_string(xml)
-    seconds = time.perf_counter() - t0
-    if model.ngeom != asset.hull_count + 1:
-        raise RuntimeError(f"MuJoCo compiled {model.ngeom} geoms, expected {asset.hull_count + 1}.")
-    data = mujoco.MjData(model)
-    mujoco.mj_step(model, data)
-    return seconds
-
-
 def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 24_000,
                    ostium_radius_m: float = 0.015, interior_per_piece: int = 1, interior_near_ostia: int = 4,
                    probe_radius_m: float = PROBE_RADIUS_M, max_intrusion_m: float = MAX_INTRUSION_M,
-                   min_site_depth_m: float = MIN_SITE_DEPTH_M, check_compile: bool = True,
-                   seed: int = 0, hullset: Optional[HullSet] = None,
+                   min_site_depth_m: float = MIN_SITE_DEPTH_M, seed: int = 0, hullset: Optional[HullSet] = None,
                    checks=("sites", "lumen", "intrusion", "wall")) -> ValidationReport:
     """Run the checks on `asset` (an `AortaAsset` or a folder); never raises on a failed check.
 
     `checks` selects among "sites", "lumen" (the probe along the centerlines),
-    "intrusion" and "wall"; `check_compile` adds the MuJoCo compile. Skipped
-    checks report NaN / 0 samples.
+    "intrusion" and "wall". Skipped checks report NaN / 0 samples; `compile_seconds`
+    is None (see `cathsim_dmc.model_check`).
     """
     unknown = set(checks) - {"sites", "lumen", "intrusion", "wall"}
     if unknown:
@@ -397,15 +373,8 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
             problems.append(f"{holes} of {len(pts)} wall-shell samples lie in no collision piece "
                             f"(first at {np.round(where * 1e3, 1).tolist()} mm)")
 
-    compile_seconds = None
-    if check_compile:
-        try:
-            compile_seconds = compile_in_mujoco(asset)
-        except Exception as exc:  # noqa: BLE001 - reported as a problem
-            problems.append(f"MuJoCo could not compile the asset: {exc}")
-
     return ValidationReport(
         name=asset.name, hulls=asset.hull_count, triangles=len(f), probe_radius_m=probe_radius_m,
         clearance_m=clearance, site_depth_m=site_depth, max_intrusion_m=max_intrusion,
         intrusion_samples=len(samples), shell_samples=len(pts), ostium_samples=n_near, holes=holes,
-        compile_seconds=compile_seconds, seconds=time.perf_counter() - t0, problems=problems)
+        compile_seconds=None, seconds=time.perf_counter() - t0, problems=problems)
