@@ -56,7 +56,7 @@ from cathsim_dmc.anatomy.asset import json_rounded, write_asset
 from cathsim_dmc.anatomy.lumen import Lumen, check_lumen_surface, lumen_normals, rim_vertices
 from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
 from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges, fix_slivers,
-                                        level_set_surface, refine_creases, relax_on_surface)
+                                        level_set_surface, manifold_arrays, refine_creases, relax_on_surface)
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
                                            triangle_quality)
@@ -423,7 +423,7 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     if remesh:
         shape = np.array(grid.values.shape)
         man = level_set_surface(grid, grid.origin + grid.spacing, grid.origin + grid.spacing * (shape - 2),
-                                  edge_length)
+                                edge_length)
     else:
         man = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v, tri_verts=f.astype(np.uint64)))
     length = float(np.max(np.ptp(v, axis=0))) + 0.1
@@ -446,10 +446,7 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
             if signed_distance(pv, pf, entry[None])[0] > 0:
                 best = part
         man = best if best is not None else max(parts, key=lambda x: x.volume())
-    out = man.to_mesh64()
-    vv = np.array(out.vert_properties, dtype=np.float64)[:, :3].copy()
-    ff = np.array(out.tri_verts, dtype=np.int64)
-    vv, ff = canonical_order(vv, ff)
+    vv, ff = manifold_arrays(man)
     edge = edge_length if remesh else _triangle_stats(vv, ff)[0] * 1.7
     # Local frame: the cut plane is y = 0, the entry axis is the y axis.
     to_local = lambda x: (x - p0) @ rot.T

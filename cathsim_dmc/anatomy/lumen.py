@@ -23,8 +23,8 @@ import numpy as np
 
 from cathsim_dmc.anatomy.arch import ArchModel
 from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges,
-                                        faces_follow_surface, fix_slivers, level_set_surface, refine_creases,
-                                        relax_on_surface)
+                                        faces_follow_surface, fix_slivers, level_set_surface, manifold_arrays,
+                                        refine_creases, relax_on_surface)
 from cathsim_dmc.anatomy.sdf import SDFGrid, arch_sdf_grid
 from cathsim_dmc.anatomy.triangles import canonical_order, drop_unused_vertices, edge_faces, vertex_normals
 
@@ -104,11 +104,7 @@ def _build_lumen(model: ArchModel, grid: SDFGrid, edge: float) -> Lumen:
     man = man.trim_by_plane((0.0, 1.0, 0.0), float(c[1]))
     if man.status() != manifold3d.Error.NoError or man.is_empty():
         raise RuntimeError(f"Lumen meshing failed: {man.status()}")
-    mesh = man.to_mesh64()
-    v = np.array(mesh.vert_properties, dtype=np.float64)[:, :3].copy()
-    f = np.array(mesh.tri_verts, dtype=np.int64)
-    # The mesher may run in parallel: fix the order before anything depends on it.
-    v, f = canonical_order(v, f)
+    v, f = manifold_arrays(man)
     # Drop manifold's ear-clipped cap, clean the rim, close it with a fan.
     y_cut = float(c[1])
     v[np.abs(v[:, 1] - y_cut) < 1e-9, 1] = y_cut

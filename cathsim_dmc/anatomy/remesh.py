@@ -27,8 +27,9 @@ import manifold3d
 import numpy as np
 
 from cathsim_dmc.anatomy.sdf import FAR_M, SDFGrid
-from cathsim_dmc.anatomy.triangles import (boundary_edges, boundary_loops, corner_angles_rad, drop_unused_vertices,
-                                           edge_faces, face_normals, fan_triangles, unique_edges, vertex_normals)
+from cathsim_dmc.anatomy.triangles import (boundary_edges, boundary_loops, canonical_order, corner_angles_rad,
+                                           drop_unused_vertices, edge_faces, face_normals, fan_triangles,
+                                           unique_edges, vertex_normals)
 
 
 def level_set_surface(grid: SDFGrid, lo: np.ndarray, hi: np.ndarray, edge_m: float) -> manifold3d.Manifold:
@@ -58,6 +59,15 @@ def level_set_surface(grid: SDFGrid, lo: np.ndarray, hi: np.ndarray, edge_m: flo
 
     box = [float(c) for c in lo] + [float(c) for c in hi]
     return manifold3d.Manifold.level_set(f, box, edge_m)
+
+
+def manifold_arrays(surface: manifold3d.Manifold):
+    """Vertices (float64, m) and faces of a manifold3d surface, in canonical order: the mesher may
+    run in parallel, so the order is fixed before anything depends on it."""
+    mesh = surface.to_mesh64()
+    v = np.array(mesh.vert_properties, dtype=np.float64)[:, :3].copy()
+    f = np.array(mesh.tri_verts, dtype=np.int64)
+    return canonical_order(v, f)
 
 
 def refine_creases(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_min: float,

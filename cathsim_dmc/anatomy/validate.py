@@ -115,10 +115,7 @@ class HullSet:
             i = int(np.argmax(self.covered(points)))
             return 0.0, i
         upper, _ = self.vertex_tree.query(points)
-        lists = self.tree.query_ball_point(points, upper + self.reach + 1e-9)
-        counts = np.array([len(c) for c in lists], dtype=np.int64)
-        pi = np.repeat(np.arange(len(points)), counts)
-        hi = np.fromiter((j for c in lists for j in c), dtype=np.int64, count=int(counts.sum()))
+        pi, hi = self._pairs(points, upper + self.reach + 1e-9)
         near = np.linalg.norm(points[pi] - self.centroids[hi], axis=1) <= self.reach_each[hi] + upper[pi] + 1e-9
         pi, hi = pi[near], hi[near]
         lower = np.empty(len(pi))
