@@ -4,7 +4,7 @@
     python scripts/build_assets.py                 # every preset
     python scripts/build_assets.py type1 bovine    # only these
     python scripts/build_assets.py --check         # rebuild into a temp dir, compare byte for byte
-    python scripts/build_assets.py --validate      # also run the geometric validation
+    python scripts/build_assets.py --validate      # also run the geometric validation and the MuJoCo compile
 
 Writes assets/<name>/{meta.json, visual.stl, collision.npz} and prints, per
 asset, its arch-type distance (mm and CCA diameters, with the clinical class),
@@ -36,7 +36,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "assets", help="output root folder")
     parser.add_argument("--check", action="store_true",
                         help="build into a temporary folder and compare with the assets under --out")
-    parser.add_argument("--validate", action="store_true", help="run cathsim_dmc.anatomy.validate on each build")
+    parser.add_argument("--validate", action="store_true",
+                        help="run cathsim_dmc.model_check.validate_and_compile on each build")
     args = parser.parse_args(argv)
     names = args.names or list(PRESETS)
     unknown = [n for n in names if n not in PRESETS]
@@ -63,9 +64,9 @@ def main(argv=None) -> int:
             print(f"{'':<15} {'identical to ' + str(args.out / name) if all(same) else 'DIFFERS from ' + str(args.out / name)}")
             status |= 0 if all(same) else 1
         if args.validate:
-            from cathsim_dmc.anatomy.validate import validate_asset
+            from cathsim_dmc.model_check import validate_and_compile
 
-            report = validate_asset(r.path)
+            report = validate_and_compile(r.path)
             print(f"{'':<15} {report.summary()}")
             for problem in report.problems:
                 print(f"{'':<17}- {problem}")

@@ -2,7 +2,7 @@
 
 Geometry checks run on the committed assets (what users load): the full
 validation (`cathsim_dmc.anatomy.validate`: lumen open for the wire, sites inside,
-no intrusion, continuous wall, MuJoCo compiles) for each, plus the variant
+no intrusion, continuous wall; `cathsim_dmc.model_check`: MuJoCo compiles) for each, plus the variant
 properties (arch type class, tortuosity, aneurysm size, bovine origin). The
 determinism check rebuilds a coarse variant twice. Run with `-s` to see the
 measured numbers.
@@ -19,8 +19,10 @@ import trimesh
 from scipy import spatial
 
 from cathsim_dmc.anatomy import (BRANCHES, PRESETS, ArchParams, arch_type_of, build_arch, build_asset, load_asset)
-from cathsim_dmc.anatomy import mesh as mesh_lib
+from cathsim_dmc.anatomy.sdf import signed_distance
+from cathsim_dmc.anatomy.triangles import triangle_quality
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, HullSet, cap_faces, validate_asset
+from cathsim_dmc.model_check import validate_and_compile
 from cathsim_dmc.paths import available_aortas
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -39,7 +41,7 @@ def shipped(name):
     if name not in _cache:
         asset = load_asset(ASSETS / name)
         hulls = HullSet(asset.hulls)
-        _cache[name] = (asset, hulls, validate_asset(asset, hullset=hulls))
+        _cache[name] = (asset, hulls, validate_and_compile(asset, hullset=hulls))
     return _cache[name]
 
 
@@ -49,7 +51,7 @@ def trimesh_of(asset):
 
 def inside_depth(asset, points):
     """Signed distance to the lumen surface, positive inside the lumen."""
-    return mesh_lib.signed_distance(asset.visual_vertices, asset.visual_faces, np.asarray(points, dtype=np.float64))
+    return signed_distance(asset.visual_vertices, asset.visual_faces, np.asarray(points, dtype=np.float64))
 
 
 # ----------------------------------------------------------------------------
@@ -88,7 +90,7 @@ def test_lumen_watertight_outward_and_clean(name):
     assert lumen.is_watertight and lumen.is_winding_consistent
     assert lumen.volume > 0, "faces must be oriented outward"
     assert lumen.euler_number == 2, "one closed surface without handles"
-    q = mesh_lib.triangle_quality(lumen.vertices, lumen.faces[~cap])
+    q = triangle_quality(lumen.vertices, lumen.faces[~cap])
     n_thin = int((q["min_angle"] < 10).sum())
     print(f"\n{name}: {len(lumen.faces)} triangles, edges {q['edge_min'] / MM:.2f}-{q['edge_max'] / MM:.2f} mm "
           f"(mean {q['edge_mean'] / MM:.2f}), min angle {q['min_angle'].min():.1f} deg, {n_thin} below 10 deg")
@@ -224,7 +226,7 @@ def test_hole_detector_finds_a_missing_piece():
     keep = np.setdiff1d(np.arange(asset.hull_count), drop)
     pieces = asset.hulls
     broken = _with_hulls(asset, [pieces[i] for i in keep])
-    report = validate_asset(broken, check_compile=False, shell_samples=5000, ostium_samples=5000, checks=("wall",))
+    report = validate_asset(broken, shell_samples=5000, ostium_samples=5000, checks=("wall",))
     print("\n" + report.summary())
     assert report.holes > 0 and not report.ok
 
@@ -239,12 +241,12 @@ def test_intrusion_and_blockage_are_found():
     inward /= np.linalg.norm(inward)
     moved = list(pieces)
     moved[i] = pieces[i] + (1.0 * MM * inward).astype(np.float32)
-    report = validate_asset(_with_hulls(asset, moved), check_compile=False, checks=("intrusion",))
+    report = validate_asset(_with_hulls(asset, moved), checks=("intrusion",))
     assert report.max_intrusion_m > 0.5 * MM and not report.ok
     # ...and a small cube on the BCA centerline blocks the wire.
     c = np.asarray(asset.centerlines["bca"].points)[-30]
     cube = (c + 0.5 * MM * np.array(list(np.ndindex(2, 2, 2))) - 0.25 * MM).astype(np.float32)
-    report = validate_asset(_with_hulls(asset, pieces + [cube]), check_compile=False, checks=("lumen",))
+    report = validate_asset(_with_hulls(asset, pieces + [cube]), checks=("lumen",))
     print("\n" + "\n".join(report.problems))
     assert report.clearance_m["bca"] < PROBE_RADIUS_M
     assert any("centerline bca" in p for p in report.problems)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from cathsim_dmc.anatomy import (ARCH_TYPE_RATIO_RANGE, PRESETS, ArchParams, arch_params, build_arch, cache_root,
-                                 generated_asset, load_asset, params_hash, sample_arch_params, validate_asset)
+                                 generated_asset, load_asset, params_hash, sample_arch_params)
+from cathsim_dmc.model_check import validate_and_compile
 
 COARSE = dict(edge_length_m=0.005, sdf_spacing_m=0.002)
 
@@ -152,7 +153,7 @@ def test_random_generated_asset_passes_validation(seed, tmp_path_factory):
     cache = tmp_path_factory.getbasetemp() / "random-aortas"
     p = sample_arch_params(seed, base="aneurysm" if seed % 10 == 9 else ("bovine" if seed % 5 == 4 else "type1"))
     folder = generated_asset(p, cache_dir=cache)
-    report = validate_asset(folder)
+    report = validate_and_compile(folder)
     print(f"\nseed {seed} (type {p.arch_type}, bovine {p.bovine}, aneurysm {p.aneurysm_diameter_m > 0}): "
           + report.summary())
     assert report.ok, report.problems

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from cathsim_dmc.anatomy import load_asset, validate_asset
+from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M
+from cathsim_dmc.model_check import validate_and_compile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = pathlib.Path(sys.executable).with_name("cathsim-aorta")
@@ -76,7 +77,7 @@ def test_import_round_trip_of_a_generated_lumen(type1_mm_stl, tmp_path):
         np.testing.assert_allclose(asset.sites[k], p, atol=1e-6)
     np.testing.assert_allclose(asset.entry_position, src.entry_position, atol=1e-6)
     assert np.dot(asset.entry_direction, [0, 1, 0]) > 0.999
-    report = validate_asset(asset)
+    report = validate_and_compile(asset)
     print(report.summary())
     assert report.ok, report.problems
     assert report.holes == 0 and report.max_intrusion_m <= 0.2e-3 and report.min_clearance_m >= PROBE_RADIUS_M
@@ -110,7 +111,7 @@ def test_import_remeshes_a_fine_open_mesh(tmp_path):
     assert "assuming metres" in proc.stdout and "remeshing" in proc.stdout and "closed 1 flat open vessel end" in proc.stdout
     asset = load_asset(tmp_path / "out")
     assert 8_000 < asset.hull_count < 20_000
-    assert validate_asset(asset).ok
+    assert validate_and_compile(asset).ok
 
 
 @pytest.fixture(scope="module")

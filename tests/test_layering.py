@@ -1,11 +1,13 @@
 """The package's layering, read from its imports (every import statement, including the
 ones deferred into functions): no module outside cli/ imports cli/, no import circles,
-and the anatomy layer imports without dm_control or MuJoCo."""
+and the anatomy layer (its validation included) imports without dm_control or MuJoCo."""
 
 import ast
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "cathsim_dmc"
@@ -85,10 +87,27 @@ def test_no_import_circles():
     assert cycles(import_graph()) == []
 
 
-def test_anatomy_imports_without_dm_control_or_mujoco():
+@pytest.mark.parametrize("module", ["cathsim_dmc.anatomy", "cathsim_dmc.anatomy.validate"])
+def test_anatomy_imports_without_dm_control_or_mujoco(module):
     # A fresh interpreter: this test process has loaded everything already.
-    code = ("import sys, cathsim_dmc.anatomy; "
+    code = (f"import sys, {module}; "
             "loaded = [m for m in ('dm_control', 'mujoco') if m in sys.modules]; "
             "assert not loaded, loaded")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
+
+
+def test_anatomy_never_imports_dm_control_or_mujoco():
+    # Not even deferred into a function: building, importing and validating an asset run
+    # without a simulator; the MuJoCo compile check is cathsim_dmc.model_check.
+    offenders = []
+    for path in sorted((ROOT / PACKAGE / "anatomy").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            else:
+                continue
+            offenders += [(path.name, n) for n in names if n.split(".")[0] in ("dm_control", "mujoco")]
+    assert offenders == []

@@ -1,5 +1,9 @@
 """Procedural aortic-arch anatomy: parametric model -> lumen mesh -> wall prisms -> asset folder.
 
+arch (parametric model) -> sdf (signed distance) -> lumen (surface; remesh, triangles)
+-> wall (prisms) -> asset (folder); importer (a lumen mesh file), validate (geometric
+checks), containment, paths; polyline helpers. No module here needs MuJoCo or dm_control.
+
     from cathsim_dmc.anatomy import PRESETS, build_asset, load_asset
     report = build_asset(PRESETS["type1"], "assets/type1")
     asset = load_asset("assets/type1")
@@ -22,8 +26,10 @@ from cathsim_dmc.anatomy.asset import (FORMAT_VERSION, AortaAsset, BuildReport, 
 from cathsim_dmc.anatomy.containment import Channel, Containment, LumenField, build_lumen_field, lumen_field
 from cathsim_dmc.anatomy.generate import (CACHE_ENV, arch_params, cache_root, generated_asset, params_hash,
                                           sample_arch_params)
-from cathsim_dmc.anatomy.mesh import Lumen, build_lumen, extrude_prisms, signed_distance
+from cathsim_dmc.anatomy.lumen import Lumen, build_lumen
+from cathsim_dmc.anatomy.sdf import signed_distance
 from cathsim_dmc.anatomy.validate import ValidationReport, validate_asset
+from cathsim_dmc.anatomy.wall import extrude_prisms
 
 __all__ = [
     "ARCH_TYPE_ELONGATION", "ARCH_TYPE_NOMINAL_RATIO", "ARCH_TYPE_RATIO_RANGE", "ARCH_TYPES", "BRANCHES",

@@ -9,7 +9,7 @@ ascending aorta is at x < 0 and ends closed a few centimetres below the arch.
 The model is purely geometric: `build_arch(params)` returns an `ArchModel`
 holding one `Vessel` (dense centerline + radius per point) for the aorta and one
 per branch, plus the landmarks (ostia, sites, entry) that the asset needs.
-`mesh.py` turns the vessels into a lumen surface.
+`sdf.py` and `lumen.py` turn the vessels into a lumen surface.
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ from typing import Dict, Tuple
 import numpy as np
 from scipy import interpolate
 
+from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
+
 BRANCHES = ("bca", "lcca", "lsa")  # proximal (ascending side) to distal
 
 
@@ -30,8 +32,7 @@ def arch_type_of(ratio: float) -> str:
 
 
 def _distance_metric(points: np.ndarray) -> float:
-    path = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
-    return path / float(np.linalg.norm(points[-1] - points[0]))
+    return polyline_length(points) / float(np.linalg.norm(points[-1] - points[0]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,12 +149,12 @@ class ArchParams:
     # validation (no holes, no intrusion) and cut the broadphase cost per physics
     # step and the env build time and memory 2-3x (physics probe). 8 mm folded
     # triangles on five of the six presets, 10 mm on type1 too; where an arch
-    # folds one, mesh.build_lumen meshes it again with shorter edges.
+    # folds one, lumen.build_lumen meshes it again with shorter edges.
     edge_length_m: float = 0.007
     # Local refinement: triangles next to edges folded by more than this
     # (narrow branches, the carinas between ostia) are split, up to
     # `refine_levels` times, then the mesh is relaxed on the surface, so that the
-    # wall prisms follow the curvature (modelling choice, see mesh.py). One
+    # wall prisms follow the curvature (modelling choice, see remesh.py). One
     # level takes the worst fold from ~65 to ~33 deg for +3% triangles.
     max_dihedral_deg: float = 25.0
     refine_levels: int = 1
@@ -277,8 +278,7 @@ class Vessel:
 
     @property
     def arclength(self) -> np.ndarray:
-        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
-        return np.concatenate([[0.0], np.cumsum(seg)])
+        return arclength(self.points)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -340,15 +340,6 @@ class ArchModel:
 
 # ----------------------------------------------------------------------------
 # Geometry helpers
-
-
-def _resample(points: np.ndarray, spacing: float) -> np.ndarray:
-    """Resample a polyline at (nearly) uniform arclength spacing, ends kept."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    n = max(2, int(math.ceil(s[-1] / spacing)) + 1)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
 
 
 def _smoothstep(x):
@@ -420,15 +411,15 @@ def build_arch(params: ArchParams) -> ArchModel:
     # the lower end of the part that is trimmed away by the open-end cut.
     y_open = -(p.descending_length_m + p.entry_inset_m)
     desc = np.stack([np.full(2, arch.a), [y_open - _CUT_MARGIN_M, 0.0], np.full(2, -arch.hd)], axis=1)
-    desc = _resample(desc, _SAMPLE_M)
+    desc = resample_polyline(desc, _SAMPLE_M)
     th_dense = np.linspace(0.0, math.pi, 6001)
     asc = np.stack([np.full(2, -arch.a), [0.0, -p.ascending_length_m], np.full(2, arch.hd)], axis=1)
-    raw = np.concatenate([desc, arch.point(th_dense)[1:], _resample(asc, _SAMPLE_M)[1:]])
-    s_raw = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(raw, axis=0), axis=1))])
+    raw = np.concatenate([desc, arch.point(th_dense)[1:], resample_polyline(asc, _SAMPLE_M)[1:]])
+    s_raw = arclength(raw)
     s_theta = s_raw[len(desc) - 1:len(desc) - 1 + len(th_dense)]
     s_of_theta = lambda t: float(np.interp(t, th_dense, s_theta))
-    points = _resample(raw, _SAMPLE_M)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    points = resample_polyline(raw, _SAMPLE_M)
+    s = arclength(points)
     s_open = _CUT_MARGIN_M
     s_arch0, s_arch1 = s_of_theta(0.0), s_of_theta(math.pi)
 
@@ -499,7 +490,7 @@ def build_arch(params: ArchParams) -> ArchModel:
         points = points.copy()
         points[:, 0] += p.tortuosity_amplitude_m * window * np.sin(
             2 * math.pi * (s - seg_lo) / p.tortuosity_wavelength_m + phase)
-        s_new = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        s_new = arclength(points)
         s_br = {b: float(np.interp(v, s, s_new)) for b, v in s_br.items()}
         s_arch0, s_arch1 = (float(np.interp(v, s, s_new)) for v in (s_arch0, s_arch1))
         s = s_new
@@ -524,8 +515,8 @@ def build_arch(params: ArchParams) -> ArchModel:
         dirs = _unit((1 - w) * n0 + w * d1)
         steps = np.diff(u)[:, None] * 0.5 * (dirs[1:] + dirs[:-1])
         bpts = A + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
-        bpts = _resample(bpts, _SAMPLE_M)
-        ub = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(bpts, axis=0), axis=1))])
+        bpts = resample_polyline(bpts, _SAMPLE_M)
+        ub = arclength(bpts)
         taper = np.clip((ub - R_a) / p.branch_length_m(b), 0, 1)
         branches[b] = Vessel(b, bpts, r_branch[b] * (1 - (1 - p.branch_taper) * taper))
         ostia[b] = A + R_a * n0
@@ -582,4 +573,4 @@ def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,
     # Drop duplicate points before resampling.
     d = np.linalg.norm(np.diff(path, axis=0), axis=1)
     path = np.concatenate([path[:1], path[1:][d > 1e-9]])
-    return _resample(path, spacing)
+    return resample_polyline(path, spacing)

@@ -35,6 +35,8 @@ from typing import Dict, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from cathsim_dmc.anatomy.polyline import polyline_length
+
 FORMAT_VERSION = 1
 META_FILE = "meta.json"
 VISUAL_FILE = "visual.stl"
@@ -126,8 +128,8 @@ def _write_npz(path: pathlib.Path, arrays: Mapping[str, np.ndarray]) -> None:
             zf.writestr(info, buf.getvalue())
 
 
-def _rounded(x):
-    """JSON-ready nested lists with fixed rounding (deterministic, compact)."""
+def json_rounded(x):
+    """JSON-ready nested lists rounded to 8 decimals (10 nm for metres): deterministic, compact."""
     a = np.asarray(x, dtype=np.float64)
     a = np.round(a, _JSON_DECIMALS) + 0.0   # + 0.0 turns -0.0 into 0.0
     return a.tolist()
@@ -187,14 +189,14 @@ def write_asset(folder, *, name: str, description: str,
         "name": name,
         "units": "m",
         "description": description,
-        "sites": {k: _rounded(sites[k]) for k in sorted(sites)},
-        "entry": {"position": _rounded(entry_position), "direction": _rounded(direction)},
-        "centerlines": {k: {"points": _rounded(centerlines[k][0]),
-                            "radius_m": _rounded(centerlines[k][1])} for k in sorted(centerlines)},
+        "sites": {k: json_rounded(sites[k]) for k in sorted(sites)},
+        "entry": {"position": json_rounded(entry_position), "direction": json_rounded(direction)},
+        "centerlines": {k: {"points": json_rounded(centerlines[k][0]),
+                            "radius_m": json_rounded(centerlines[k][1])} for k in sorted(centerlines)},
         "wall_thickness_m": float(wall_thickness_m),
-        "bounds": _rounded(bounds),
-        "arch_type_distance_m": None if arch_type_distance_m is None else _rounded(arch_type_distance_m),
-        "cca_diameter_m": None if cca_diameter_m is None else _rounded(cca_diameter_m),
+        "bounds": json_rounded(bounds),
+        "arch_type_distance_m": None if arch_type_distance_m is None else json_rounded(arch_type_distance_m),
+        "cca_diameter_m": None if cca_diameter_m is None else json_rounded(cca_diameter_m),
         "params": _json_params(params),
     }
     if extra:
@@ -332,32 +334,24 @@ class BuildReport:
         return self.arch_type_distance_m / self.cca_diameter_m
 
 
-def _wall_distance(vertices, faces, points):
-    """Unsigned distance (m) from each point to the triangles `faces`."""
-    import trimesh  # local: only the build needs it
-
-    # In millimetres: trimesh's absolute tolerances misjudge tiny triangles in metres.
-    mesh = trimesh.Trimesh(np.asarray(vertices) * 1e3, faces, process=False)
-    _, dist, _ = trimesh.proximity.closest_point(mesh, np.asarray(points) * 1e3)
-    return dist * 1e-3
-
-
 def build_asset(params, folder) -> BuildReport:
     """Generate the arch described by `params` and write it to `folder`."""
     from cathsim_dmc.anatomy import arch as arch_lib
-    from cathsim_dmc.anatomy import mesh as mesh_lib
+    from cathsim_dmc.anatomy.lumen import build_lumen
+    from cathsim_dmc.anatomy.sdf import unsigned_distance
+    from cathsim_dmc.anatomy.wall import extrude_prisms
 
     t0 = time.perf_counter()
     model = arch_lib.build_arch(params)
-    lumen = mesh_lib.build_lumen(model)
-    prisms = mesh_lib.extrude_prisms(lumen, params.wall_thickness_m)
+    lumen = build_lumen(model)
+    prisms = extrude_prisms(lumen, params.wall_thickness_m)
     centerlines, lengths = {}, {}
     wall = lumen.faces[~lumen.cap]
     for b in arch_lib.BRANCHES:
         pts = arch_lib.path_to_site(model, b)
         # Lumen radius = distance to the wall (the open end is not wall).
-        centerlines[b] = (pts, _wall_distance(lumen.vertices, wall, pts))
-        lengths[b] = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+        centerlines[b] = (pts, unsigned_distance(lumen.vertices, wall, pts))
+        lengths[b] = polyline_length(pts)
     p = model.params
     tortuosity = model.tortuosity()
     max_diameter = 2.0 * float(model.aorta.radius.max())
@@ -387,14 +381,14 @@ def build_asset(params, folder) -> BuildReport:
         centerlines=centerlines, wall_thickness_m=p.wall_thickness_m,
         params=dataclasses.asdict(p),
         arch_type_distance_m=model.arch_type_distance_m, cca_diameter_m=model.cca_diameter_m,
-        extra={"open_end": {"center": _rounded(model.open_end_center),
+        extra={"open_end": {"center": json_rounded(model.open_end_center),
                             "normal": [0.0, -1.0, 0.0],
-                            "radius_m": _rounded(model.open_end_radius)},
+                            "radius_m": json_rounded(model.open_end_radius)},
                "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
                "arch_type": model.arch_type_measured,
-               "ostia": {b: _rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
+               "ostia": {b: json_rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
                "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
-               "max_aortic_diameter_m": _rounded(max_diameter)})
+               "max_aortic_diameter_m": json_rounded(max_diameter)})
     return BuildReport(
         path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
         seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,

@@ -33,15 +33,15 @@ go on:
    the wire comes in and gets no wall;
 8. **wall**: one prism per lumen triangle extruded outward (as generated
    arches);
-9. **validate** (`cathsim_dmc.anatomy.validate`) and only then move the folder
-   into place.
+9. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
+   CLI passes `cathsim_dmc.model_check.validate_and_compile`, which adds the
+   MuJoCo compile) and only then move the folder into place.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
 import pathlib
 import shutil
 import tempfile
@@ -52,9 +52,16 @@ import numpy as np
 from scipy import ndimage, sparse, spatial
 from scipy.sparse import csgraph
 
-from cathsim_dmc.anatomy import mesh as mesh_lib
-from cathsim_dmc.anatomy.asset import _rounded, _wall_distance, write_asset
-from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ostia_from_centerlines, validate_asset
+from cathsim_dmc.anatomy.asset import json_rounded, write_asset
+from cathsim_dmc.anatomy.lumen import Lumen, check_lumen_surface, lumen_normals, rim_vertices
+from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
+from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges, fix_slivers,
+                                        level_set_surface, manifold_arrays, refine_creases, relax_on_surface)
+from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
+from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
+                                           triangle_quality)
+from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines, validate_asset
+from cathsim_dmc.anatomy.wall import extrude_prisms
 
 MIN_SITE_DEPTH_M = 0.001
 DEFAULT_EDGE_M = 0.004            # level-set edge of the generator: mean edges come out ~2.3 mm
@@ -79,7 +86,7 @@ class ImportReport:
     entry_direction: np.ndarray
     path_length_m: Dict[str, float]
     seconds: float
-    validation: Optional[object] = None
+    validation: Optional[ValidationReport] = None
 
 
 def _fmt(p, scale=1.0, digits=1):
@@ -110,36 +117,6 @@ def read_lumen(path) -> "tuple[np.ndarray, np.ndarray]":
     if not np.all(np.isfinite(v)):
         raise MeshImportError(f"{path}: has non-finite vertex coordinates")
     return v, f
-
-
-def _boundary_loops(f):
-    """Closed loops of directed boundary edges, or None if the boundary is not simple."""
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    key = e[:, 0] * (f.max() + 1) + e[:, 1]
-    rkey = e[:, 1] * (f.max() + 1) + e[:, 0]
-    b = e[~np.isin(key, rkey)]
-    if len(b) == 0:
-        return []
-    nxt = {}
-    for a, c in b:
-        if int(a) in nxt:
-            return None                  # a vertex where two holes touch
-        nxt[int(a)] = int(c)
-    loops, seen = [], set()
-    for start in sorted(nxt):
-        if start in seen:
-            continue
-        loop = [start]
-        seen.add(start)
-        while nxt.get(loop[-1], start) != start:
-            loop.append(nxt[loop[-1]])
-            if loop[-1] in seen or len(loop) > len(nxt):
-                return None
-            seen.add(loop[-1])
-        if loop[-1] not in nxt:
-            return None
-        loops.append(loop)
-    return loops
 
 
 def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarray, List[str]]":
@@ -191,7 +168,7 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
             repairs.append(f"filled small holes with {len(mesh.faces) - before} triangles")
     if not mesh.is_watertight:
         vv, ff = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-        loops = _boundary_loops(ff)
+        loops = boundary_loops(ff)
         if loops is None:
             raise MeshImportError(f"{path}: not watertight, and its holes touch each other; cannot close them safely")
         caps, added = [], []
@@ -210,8 +187,8 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
                     f"it safely")
             ci = len(vv) + len(added)
             added.append(c)
-            caps += [[ci, loop[(i + 1) % len(loop)], loop[i]] for i in range(len(loop))]
-        mesh = trimesh.Trimesh(np.concatenate([vv, np.array(added)]), np.concatenate([ff, np.array(caps)]),
+            caps.append(fan_triangles(loop, ci))
+        mesh = trimesh.Trimesh(np.concatenate([vv, np.array(added)]), np.concatenate([ff] + caps),
                                process=False)
         repairs.append(f"closed {len(loops)} flat open vessel end{'s' * (len(loops) > 1)}")
     if not mesh.is_winding_consistent:
@@ -256,7 +233,7 @@ def detect_units(v, units: str, path) -> "tuple[float, str, Optional[str]]":
 # 4: signed distance grid
 
 
-def mesh_sdf_grid(v, f, spacing: float, pad: float) -> mesh_lib.SDFGrid:
+def mesh_sdf_grid(v, f, spacing: float, pad: float) -> SDFGrid:
     """SDF grid (positive OUTSIDE) of a closed mesh: exact within ~1 node of the surface.
 
     Nodes next to the surface (every node within one node of a dense surface
@@ -277,7 +254,7 @@ def mesh_sdf_grid(v, f, spacing: float, pad: float) -> mesh_lib.SDFGrid:
     band[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     band = ndimage.binary_dilation(band, structure=np.ones((3, 3, 3), dtype=bool))
     nodes = np.argwhere(band)
-    sd_band = mesh_lib.signed_distance(v, f, lo + h * nodes)           # + inside
+    sd_band = signed_distance(v, f, lo + h * nodes)           # + inside
     labels, _ = ndimage.label(~band)
     border = np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
                                        labels[:, -1].ravel(), labels[:, :, 0].ravel(), labels[:, :, -1].ravel()]))
@@ -288,7 +265,7 @@ def mesh_sdf_grid(v, f, spacing: float, pad: float) -> mesh_lib.SDFGrid:
     d_out = ndimage.distance_transform_edt(~inside) * h
     values = np.where(inside, -np.maximum(d_in - 0.5 * h, 0.0), np.maximum(d_out - 0.5 * h, 0.0))
     values[tuple(nodes.T)] = -sd_band
-    return mesh_lib.SDFGrid(origin=lo, spacing=h, values=values)
+    return SDFGrid(origin=lo, spacing=h, values=values)
 
 
 # ----------------------------------------------------------------------------
@@ -299,7 +276,7 @@ _OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]) - 1
 _OFFSETS = _OFFSETS[[tuple(o) > (0, 0, 0) for o in _OFFSETS]]          # 13 of the 26 neighbours
 
 
-def _grid_graph(grid: mesh_lib.SDFGrid, clearance: float):
+def _grid_graph(grid: SDFGrid, clearance: float):
     """Sparse graph over grid nodes at least `clearance` inside the lumen; weights length / depth^2."""
     depth = -grid.values
     ok = depth >= clearance
@@ -327,9 +304,9 @@ def _grid_graph(grid: mesh_lib.SDFGrid, clearance: float):
 
 def _smooth_path(raw, v, f, clearance, spacing=0.0015):
     """Gaussian-smoothed polyline (ends kept) with the largest sigma that keeps `clearance` from the wall."""
-    fine = _resample(raw, 0.0005)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(fine, axis=0), axis=1))])
-    depth_raw = mesh_lib.signed_distance(v, f, fine)
+    fine = resample_polyline(raw, 0.0005)
+    s = arclength(fine)
+    depth_raw = signed_distance(v, f, fine)
     want = min(float(depth_raw.min()), clearance)
     for sigma_m in (0.004, 0.0025, 0.0015, 0.0008, 0.0):
         if sigma_m > 0:
@@ -338,21 +315,10 @@ def _smooth_path(raw, v, f, clearance, spacing=0.0015):
             cand = fine + ramp * (sm - fine)
         else:
             cand = fine
-        out = _resample(cand, spacing)
-        if sigma_m == 0.0 or mesh_lib.signed_distance(v, f, _resample(cand, 0.0005)).min() >= want:
+        out = resample_polyline(cand, spacing)
+        if sigma_m == 0.0 or signed_distance(v, f, resample_polyline(cand, 0.0005)).min() >= want:
             return out
-    return _resample(fine, spacing)
-
-
-def _resample(points, spacing):
-    points = np.asarray(points, dtype=np.float64)
-    d = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    points = np.concatenate([points[:1], points[1:][d > 1e-12]])
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    n = max(2, int(math.ceil(s[-1] / spacing)) + 1)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
+    return resample_polyline(fine, spacing)
 
 
 def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=PROBE_RADIUS_M):
@@ -401,7 +367,7 @@ def estimate_entry_direction(grid, entry, centerlines) -> np.ndarray:
     axis = vt[0]
     ahead = []
     for pts_c in centerlines.values():
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts_c, axis=0), axis=1))])
+        s = arclength(pts_c)
         ahead.append(pts_c[int(np.searchsorted(s, min(radius, s[-1])))])
     if np.dot(np.mean(ahead, axis=0) - entry, axis) < 0:
         axis = -axis
@@ -422,12 +388,12 @@ def _frame(direction):
 
 
 def _triangle_stats(v, f):
-    q = mesh_lib.triangle_quality(v, f)
+    q = triangle_quality(v, f)
     return q["edge_mean"], float(q["min_angle"].min())
 
 
 def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length: float, depth: float,
-                     path) -> "tuple[mesh_lib.Lumen, dict]":
+                     path) -> "tuple[Lumen, dict]":
     """Closed lumen (remeshed or not), cut square to `direction` `depth` behind the entry, capped flat."""
     import manifold3d
     import trimesh
@@ -456,8 +422,8 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
 
     if remesh:
         shape = np.array(grid.values.shape)
-        man = mesh_lib._level_set(grid, grid.origin + grid.spacing, grid.origin + grid.spacing * (shape - 2),
-                                  edge_length)
+        man = level_set_surface(grid, grid.origin + grid.spacing, grid.origin + grid.spacing * (shape - 2),
+                                edge_length)
     else:
         man = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v, tri_verts=f.astype(np.uint64)))
     length = float(np.max(np.ptp(v, axis=0))) + 0.1
@@ -477,13 +443,10 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
             pm = part.to_mesh64()
             pv = np.array(pm.vert_properties)[:, :3]
             pf = np.array(pm.tri_verts, dtype=np.int64)
-            if mesh_lib.signed_distance(pv, pf, entry[None])[0] > 0:
+            if signed_distance(pv, pf, entry[None])[0] > 0:
                 best = part
         man = best if best is not None else max(parts, key=lambda x: x.volume())
-    out = man.to_mesh64()
-    vv = np.array(out.vert_properties, dtype=np.float64)[:, :3].copy()
-    ff = np.array(out.tri_verts, dtype=np.int64)
-    vv, ff = mesh_lib._canonical(vv, ff)
+    vv, ff = manifold_arrays(man)
     edge = edge_length if remesh else _triangle_stats(vv, ff)[0] * 1.7
     # Local frame: the cut plane is y = 0, the entry axis is the y axis.
     to_local = lambda x: (x - p0) @ rot.T
@@ -493,42 +456,36 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     near_axis = np.hypot(loc[:, 0], loc[:, 2]) < r_cut + 1e-6
     cap = np.all((np.abs(loc[ff][:, :, 1]) < 1e-9) & near_axis[ff], axis=1)
     ff = ff[~cap]
-    used = np.unique(ff)
-    remap = -np.ones(len(loc), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    loc, ff = loc[used], remap[ff]
-    loops = _boundary_loops(ff)
+    loc, ff = drop_unused_vertices(loc, ff)
+    loops = boundary_loops(ff)
     if loops is None or len(loops) != 1:
         raise MeshImportError(f"{path}: the open end behind the entry is not one simple rim "
                               f"({0 if loops is None else len(loops)} loops); choose another entry")
-    loc, ff = mesh_lib._clean_rim(loc, ff, np.zeros(2), 0.0, edge, radius=r_cut + 3 * edge)
+    loc, ff = clean_rim(loc, ff, np.zeros(2), 0.0, edge, radius=r_cut + 3 * edge)
     vv = to_world(loc)
     band = lambda x: (to_local(x)[:, 1] < 3 * edge) & (np.hypot(to_local(x)[:, 0], to_local(x)[:, 2]) < r_cut + 3 * edge)
     if remesh:
-        vv, ff = mesh_lib.collapse_short_edges(vv, ff, grid, mesh_lib.SHORT_EDGE_FRACTION * edge, frozen=band(vv))
-        vv, ff = mesh_lib._refine_curved(vv, ff, grid, 25.0, 1, -np.inf, frozen=band)
-        vv = mesh_lib._relax(vv, ff, grid, frozen=band(vv), iterations=10)
-    vv, ff = mesh_lib.fix_slivers(vv, ff, grid, frozen=band(vv))
+        vv, ff = collapse_short_edges(vv, ff, grid, SHORT_EDGE_FRACTION * edge, frozen=band(vv))
+        vv, ff = refine_creases(vv, ff, grid, 25.0, 1, -np.inf, frozen=band)
+        vv = relax_on_surface(vv, ff, grid, frozen=band(vv), iterations=10)
+    vv, ff = fix_slivers(vv, ff, grid, frozen=band(vv))
     loc = to_local(vv)
     loc[np.abs(loc[:, 1]) < 1e-12, 1] = 0.0
-    loc, ff = mesh_lib._close_cap(loc, ff, 0.0)
-    vv2, ff2 = mesh_lib._canonical(to_world(loc), ff)
+    loc, ff = close_cap(loc, ff, 0.0)
+    vv2, ff2 = canonical_order(to_world(loc), ff)
     loc2 = to_local(vv2)
     cap2 = np.all((np.abs(loc2[ff2][:, :, 1]) < 1e-9)
                   & (np.hypot(loc2[ff2][:, :, 0], loc2[ff2][:, :, 2]) < r_cut + 3 * edge), axis=1)
-    normals = mesh_lib.vertex_normals(vv2, ff2, ~cap2)
-    rim = np.unique(ff2[cap2])
-    rim = rim[np.isin(rim, ff2[~cap2])]
-    normals[rim] -= np.outer(normals[rim] @ direction, direction)
-    normals[rim] /= np.linalg.norm(normals[rim], axis=1, keepdims=True)
+    normals = lumen_normals(vv2, ff2, cap2, direction)
+    rim = rim_vertices(ff2, cap2)
     try:
-        mesh_lib._check_surface(vv2, ff2, cap2, grid)
+        check_lumen_surface(vv2, ff2, cap2, grid)
     except RuntimeError as exc:
         raise MeshImportError(f"{path}: {exc}") from None
     radius = float(np.max(np.linalg.norm((vv2[rim] - p0) - np.outer((vv2[rim] - p0) @ direction, direction),
                                          axis=1)))
-    open_end = {"center": _rounded(p0), "normal": _rounded(-direction), "radius_m": _rounded(radius)}
-    return mesh_lib.Lumen(vertices=vv2, faces=ff2, cap=cap2, normals=normals), open_end
+    open_end = {"center": json_rounded(p0), "normal": json_rounded(-direction), "radius_m": json_rounded(radius)}
+    return Lumen(vertices=vv2, faces=ff2, cap=cap2, normals=normals), open_end
 
 
 # ----------------------------------------------------------------------------
@@ -549,6 +506,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 entry_direction: Optional[Sequence[float]] = None, units: str = "auto", name: Optional[str] = None,
                 wall_thickness_m: float = 0.002, edge_length_m: Optional[float] = None, remesh="auto",
                 sdf_spacing_m: Optional[float] = None, open_end_depth_m: float = 0.005, validate: bool = True,
+                validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
                 overwrite: bool = False, log: Callable[[str], None] = print) -> ImportReport:
     """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
     t0 = time.perf_counter()
@@ -581,7 +539,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     entry_m = entry_in * scale
     sites_m = {k: p * scale for k, p in sites_in.items()}
 
-    depth = mesh_lib.signed_distance(v, f, np.concatenate([[entry_m], list(sites_m.values())]))
+    depth = signed_distance(v, f, np.concatenate([[entry_m], list(sites_m.values())]))
     labels = ["entry"] + [f"sites.{k}" for k in sites_m]
     given = [entry_in] + list(sites_in.values())
     for lab, d, p in zip(labels, depth, given):
@@ -621,15 +579,15 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         do_remesh = bool(remesh)
     lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
                                        depth=open_end_depth_m, path=path)
-    prisms = mesh_lib.extrude_prisms(lumen, wall_thickness_m)
+    prisms = extrude_prisms(lumen, wall_thickness_m)
     wall = lumen.faces[~lumen.cap]
-    cl = {k: (p, _wall_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
-    lengths = {k: float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))) for k, p in centerlines.items()}
+    cl = {k: (p, unsigned_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
+    lengths = {k: polyline_length(p) for k, p in centerlines.items()}
     ostia = ostia_from_centerlines(cl)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     params = {"source": path.name, "source_sha256": digest, "units": units_used,
-              "entry": _rounded(entry_in), "entry_direction": None if dir_in is None else _rounded(dir_in),
-              "sites": {k: _rounded(p) for k, p in sorted(sites_in.items())},
+              "entry": json_rounded(entry_in), "entry_direction": None if dir_in is None else json_rounded(dir_in),
+              "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
               "wall_thickness_m": wall_thickness_m, "edge_length_m": edge, "sdf_spacing_m": h,
               "remesh": do_remesh, "open_end_depth_m": open_end_depth_m}
     description = (f"Imported lumen surface {path.name} ({units_used}); "
@@ -644,9 +602,9 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                     centerlines=cl, wall_thickness_m=wall_thickness_m, params=params,
                     extra={"open_end": open_end,
                            "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
-                           "ostia": {k: _rounded(p) for k, p in sorted(ostia.items())},
+                           "ostia": {k: json_rounded(p) for k, p in sorted(ostia.items())},
                            "import": {"repairs": repairs, "notes": notes}})
-        report = validate_asset(tmp) if validate else None
+        report = validator(tmp) if validate else None
         if report is not None and not report.ok:
             raise MeshImportError(f"{path}: the imported asset fails validation: {report.problems[0]}"
                                   f"{f' (and {len(report.problems) - 1} more)' if len(report.problems) > 1 else ''}")

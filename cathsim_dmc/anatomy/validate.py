@@ -20,11 +20,12 @@ Checks, each on the files a user loads (visual lumen + collision pieces + meta):
   within `ostium_radius_m` of every ostium) each lie inside some piece or
   inside the lumen; the open end (beyond the plane of ``meta["open_end"]``) is
   the wire's way in and is not wall;
-- **MuJoCo**: the pieces and the visual mesh compile and step.
-
 Ostia come from ``meta["ostia"]`` (the generator writes them) or are estimated
 from the centerlines (where the lumen radius jumps, and where the centerlines
 to different sites part).
+
+No MuJoCo here: `cathsim_dmc.model_check.validate_and_compile` adds the check
+that the pieces and the visual mesh compile and step.
 """
 
 from __future__ import annotations
@@ -36,8 +37,10 @@ from typing import Dict, List, Optional
 import numpy as np
 from scipy import spatial
 
-from cathsim_dmc.anatomy import mesh as mesh_lib
 from cathsim_dmc.anatomy.asset import AortaAsset, load_asset
+from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
+from cathsim_dmc.anatomy.sdf import signed_distance
+from cathsim_dmc.anatomy.triangles import face_normals, vertex_normals
 
 WIRE_RADIUS_M = 0.000445            # 0.035 in guidewire
 PROBE_RADIUS_M = WIRE_RADIUS_M + 0.0005
@@ -112,10 +115,7 @@ class HullSet:
             i = int(np.argmax(self.covered(points)))
             return 0.0, i
         upper, _ = self.vertex_tree.query(points)
-        lists = self.tree.query_ball_point(points, upper + self.reach + 1e-9)
-        counts = np.array([len(c) for c in lists], dtype=np.int64)
-        pi = np.repeat(np.arange(len(points)), counts)
-        hi = np.fromiter((j for c in lists for j in c), dtype=np.int64, count=int(counts.sum()))
+        pi, hi = self._pairs(points, upper + self.reach + 1e-9)
         near = np.linalg.norm(points[pi] - self.centroids[hi], axis=1) <= self.reach_each[hi] + upper[pi] + 1e-9
         pi, hi = pi[near], hi[near]
         lower = np.empty(len(pi))
@@ -158,7 +158,7 @@ class ValidationReport:
     shell_samples: int
     ostium_samples: int
     holes: int
-    compile_seconds: Optional[float]
+    compile_seconds: Optional[float]     # MuJoCo compile (cathsim_dmc.model_check); None: not run or failed
     seconds: float
     problems: List[str]
 
@@ -230,7 +230,7 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     names = sorted(centerlines)
     for k in names:
         pts, rad = (np.asarray(a, dtype=np.float64) for a in centerlines[k])
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+        s = arclength(pts)
         tail = s >= s[-1] - 0.010
         r_branch = float(np.median(rad[tail]))
         wide = np.nonzero(rad > 1.4 * r_branch)[0]
@@ -247,49 +247,16 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     return out
 
 
-def _resample(points, spacing):
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    n = max(2, int(np.ceil(s[-1] / spacing)) + 1)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
-
-
-def compile_in_mujoco(asset: AortaAsset) -> float:
-    """Compile the pieces and the visual mesh in a bare MuJoCo model, step once; seconds taken."""
-    import mujoco
-
-    meshes, geoms = [], []
-    for i, h in enumerate(asset.hulls):
-        meshes.append(f'<mesh name="w{i}" vertex="{" ".join(f"{x:.9g}" for x in h.ravel())}"/>')
-        geoms.append(f'<geom type="mesh" mesh="w{i}"/>')
-    vv = " ".join(f"{x:.9g}" for x in asset.visual_vertices.ravel())
-    ff = " ".join(str(int(x)) for x in asset.visual_faces.ravel())
-    meshes.append(f'<mesh name="lumen" vertex="{vv}" face="{ff}"/>')
-    geoms.append('<geom type="mesh" mesh="lumen" contype="0" conaffinity="0" group="1"/>')
-    xml = (f"<mujoco><asset>{''.join(meshes)}</asset><worldbody><body name=\"aorta\">"
-           f"{''.join(geoms)}</body></worldbody></mujoco>")
-    t0 = time.perf_counter()
-    model = mujoco.MjModel.from_xml_string(xml)
-    seconds = time.perf_counter() - t0
-    if model.ngeom != asset.hull_count + 1:
-        raise RuntimeError(f"MuJoCo compiled {model.ngeom} geoms, expected {asset.hull_count + 1}.")
-    data = mujoco.MjData(model)
-    mujoco.mj_step(model, data)
-    return seconds
-
-
 def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 24_000,
                    ostium_radius_m: float = 0.015, interior_per_piece: int = 1, interior_near_ostia: int = 4,
                    probe_radius_m: float = PROBE_RADIUS_M, max_intrusion_m: float = MAX_INTRUSION_M,
-                   min_site_depth_m: float = MIN_SITE_DEPTH_M, check_compile: bool = True,
-                   seed: int = 0, hullset: Optional[HullSet] = None,
+                   min_site_depth_m: float = MIN_SITE_DEPTH_M, seed: int = 0, hullset: Optional[HullSet] = None,
                    checks=("sites", "lumen", "intrusion", "wall")) -> ValidationReport:
     """Run the checks on `asset` (an `AortaAsset` or a folder); never raises on a failed check.
 
     `checks` selects among "sites", "lumen" (the probe along the centerlines),
-    "intrusion" and "wall"; `check_compile` adds the MuJoCo compile. Skipped
-    checks report NaN / 0 samples.
+    "intrusion" and "wall". Skipped checks report NaN / 0 samples; `compile_seconds`
+    is None (see `cathsim_dmc.model_check`).
     """
     unknown = set(checks) - {"sites", "lumen", "intrusion", "wall"}
     if unknown:
@@ -300,7 +267,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     rng = np.random.default_rng(seed)
     problems: List[str] = []
     v, f = _lumen_mesh(asset)
-    sd = lambda pts: mesh_lib.signed_distance(v, f, np.asarray(pts, dtype=np.float64))   # + inside
+    sd = lambda pts: signed_distance(v, f, np.asarray(pts, dtype=np.float64))   # + inside
     hs = HullSet(asset.hulls) if hullset is None else hullset
     thickness = asset.wall_thickness_m
     ostia = estimate_ostia(asset)
@@ -327,7 +294,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
         if "lumen" not in checks:
             clearance[k] = float("nan")
             continue
-        dense = _resample(pts, 0.00025)
+        dense = resample_polyline(pts, 0.00025)
         clearance[k], i = hs.min_distance(dense)
         if clearance[k] < probe_radius_m:
             problems.append(f"centerline {k} passes {clearance[k] * 1e3:.2f} mm from a collision piece at "
@@ -381,11 +348,10 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     pick = np.concatenate(pick)
     bary = rng.dirichlet(np.ones(3), size=len(pick))
     base = np.einsum("nk,nkj->nj", bary, tri[pick])
-    vn = mesh_lib.vertex_normals(v, f, ~cap)
+    vn = vertex_normals(v, f, ~cap)
     n_vert = np.einsum("nk,nkj->nj", bary, vn[wall_f[pick]])
     n_vert /= np.maximum(np.linalg.norm(n_vert, axis=1, keepdims=True), 1e-12)
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    fn = face_normals(v, wall_f)
     use_face = rng.random(len(pick)) < 0.5
     normal = np.where(use_face[:, None], fn[pick], n_vert)
     dist = rng.uniform(0.00001, 0.75 * thickness, len(pick))
@@ -404,15 +370,8 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
             problems.append(f"{holes} of {len(pts)} wall-shell samples lie in no collision piece "
                             f"(first at {np.round(where * 1e3, 1).tolist()} mm)")
 
-    compile_seconds = None
-    if check_compile:
-        try:
-            compile_seconds = compile_in_mujoco(asset)
-        except Exception as exc:  # noqa: BLE001 - reported as a problem
-            problems.append(f"MuJoCo could not compile the asset: {exc}")
-
     return ValidationReport(
         name=asset.name, hulls=asset.hull_count, triangles=len(f), probe_radius_m=probe_radius_m,
         clearance_m=clearance, site_depth_m=site_depth, max_intrusion_m=max_intrusion,
         intrusion_samples=len(samples), shell_samples=len(pts), ostium_samples=n_near, holes=holes,
-        compile_seconds=compile_seconds, seconds=time.perf_counter() - t0, problems=problems)
+        compile_seconds=None, seconds=time.perf_counter() - t0, problems=problems)

@@ -148,9 +148,9 @@ def cmd_build(args: List[str]) -> int:
 
 
 def _report_validation(folder) -> int:
-    from cathsim_dmc.anatomy import validate_asset
+    from cathsim_dmc.model_check import validate_and_compile
 
-    report = validate_asset(folder)
+    report = validate_and_compile(folder)
     print(report.summary())
     for problem in report.problems:
         print(f"  - {problem}")
@@ -159,6 +159,7 @@ def _report_validation(folder) -> int:
 
 def cmd_import(args: List[str]) -> int:
     from cathsim_dmc.anatomy.importer import import_mesh
+    from cathsim_dmc.model_check import validate_and_compile
 
     opts = parse_pairs(args, positional_key="mesh")
     sites = {k.split(".", 1)[1]: opts.pop(k) for k in list(opts) if k.startswith("sites.")}
@@ -190,7 +191,7 @@ def cmd_import(args: List[str]) -> int:
         units=str(opts.pop("units", "auto")), name=name, wall_thickness_m=mm("wall_mm", 2.0),
         edge_length_m=mm("edge_mm", "auto"), sdf_spacing_m=mm("sdf_mm", "auto"), remesh=remesh,
         open_end_depth_m=mm("open_end_mm", 5.0), validate=_flag(opts, "validate", True),
-        overwrite=_flag(opts, "overwrite", False))
+        validator=validate_and_compile, overwrite=_flag(opts, "overwrite", False))
     lengths = ", ".join(f"{k} {v * 100:.1f} cm" for k, v in sorted(report.path_length_m.items()))
     print(f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
           f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}")
