@@ -1,4 +1,4 @@
-"""Contact forces between the wire and the vessel, and divergence detection.
+"""Solver settings, contact forces between the wire and the vessel, and divergence detection.
 
 MuJoCo fills ``data.contact`` and ``data.efc_force`` during ``mj_step`` *before* it
 integrates, so right after a step they describe the previous state. `wire_contacts`
@@ -8,7 +8,7 @@ integration) to read forces that belong to the current state.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import mujoco
 import numpy as np
@@ -19,6 +19,59 @@ _WARNINGS_DIVERGENT = (
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQPOS,
 )
+
+
+@dataclass(frozen=True)
+class PhysicsSettings:
+    """MuJoCo solver settings of a scene, written into its MJCF ``option`` (`apply`).
+
+    Every value is set explicitly: dm_control's arena template sets
+    ``noslip_iterations=5`` and ``noslip_tolerance=0``, which a scene inherited
+    silently before these settings existed.
+    """
+
+    solver: str  # MJCF keyword: "Newton", "CG" or "PGS"
+    iterations: int  # solver iterations at most
+    tolerance: float  # solver's relative cost-improvement tolerance (early stop)
+    ls_iterations: int  # line-search iterations (Newton and CG)
+    ls_tolerance: float
+    jacobian: str  # "dense", "sparse" or "auto" (MuJoCo: sparse from 60 DOF on; the wire has 71)
+    noslip_iterations: int  # post-solve friction projection (0: off)
+    noslip_tolerance: float  # 0: always run all noslip iterations
+    sleep: bool  # MuJoCo's sleeping of trees at rest (option/flag sleep)
+
+    def apply(self, mjcf_root) -> None:
+        """Writes the settings into `mjcf_root.option` (a dm_control MJCF root)."""
+        values = asdict(self)
+        sleep = values.pop("sleep")
+        mjcf_root.option.set_attributes(**values)
+        mjcf_root.option.flag.sleep = "enable" if sleep else "disable"
+
+
+# `accurate`: what the scene compiled to before the settings were explicit (Newton with
+# MuJoCo's defaults, noslip as dm_control's arena set it); trajectories are bit-identical.
+# `fast` (issue 20's probe, about twice the speed in wall contact): PGS capped at 10
+# iterations, dense Jacobian, noslip off, sleep on. Rejected there: pyramidal cones
+# (forces ~35% lower), condim 1, Newton at 3 iterations (diverged), tolerance 1e-3 (lost
+# contacts). Both keep the elliptic cones, implicitfast integrator and timestep set by
+# the arena and the wire.
+PHYSICS_SETTINGS = {
+    "accurate": PhysicsSettings(solver="Newton", iterations=100, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
+                                jacobian="auto", noslip_iterations=5, noslip_tolerance=0.0, sleep=False),
+    "fast": PhysicsSettings(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
+                            jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True),
+}
+DEFAULT_PHYSICS = "accurate"  # `fast` becomes the default once it passes the fidelity gate
+
+
+def physics_settings(physics) -> PhysicsSettings:
+    """The settings named `physics` (or `physics` itself, if it is a `PhysicsSettings`);
+    ValueError naming the choices otherwise."""
+    if isinstance(physics, PhysicsSettings):
+        return physics
+    if isinstance(physics, str) and physics in PHYSICS_SETTINGS:
+        return PHYSICS_SETTINGS[physics]
+    raise ValueError(f"physics={physics!r} is not a physics setting; choose one of {list(PHYSICS_SETTINGS)}")
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values 
 
 
 def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
-                  progress_weight=None, aim_weight=None, **_others) -> None:
+                  progress_weight=None, aim_weight=None, physics=None, **_others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
@@ -57,6 +57,8 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_l
         check_number("progress_weight", progress_weight, 0.0)
     if aim_weight is not None:
         check_number("aim_weight", aim_weight, 0.0)
+    if physics is not None:  # a name in cs_physics.PHYSICS_SETTINGS ("accurate", "fast")
+        cs_physics.physics_settings(physics)
 
 
 @dataclass
@@ -98,6 +100,10 @@ class Navigate(composer.Task):
     aim / pi), faded out where the path runs straight ahead, so aiming is paid for the
     step it happens rather than only when the tip later moves.
 
+    Physics: `physics="accurate"` (the default; Newton) or `"fast"` (PGS capped at 10
+    iterations, dense Jacobian, noslip off, sleep on; about twice the speed in wall
+    contact), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
+
     Access: the robot's introducer sheath goes in through the aorta's open lower end
     (`Aorta.access_position_m`), its seal plate closing that end, and its tip (the
     robot's outlet) lies `robot.sheath_depth_m` (3 mm) inside the lumen; see
@@ -131,6 +137,7 @@ class Navigate(composer.Task):
         aim_weight: float = 0.0,
         insertion_limit_margin_m: float | None = None,
         extra_observations: tuple = (),
+        physics: str = cs_physics.DEFAULT_PHYSICS,
     ):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
@@ -140,7 +147,8 @@ class Navigate(composer.Task):
         self._target_name = target
         check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
                       insertion_limit_margin_m=insertion_limit_margin_m, progress_weight=progress_weight,
-                      aim_weight=aim_weight)
+                      aim_weight=aim_weight, physics=physics)
+        self._physics_setting = physics
         self._delta_m = float(delta_m)
         self._success_reward = float(success_reward)
         self._dense = bool(dense)
@@ -162,7 +170,7 @@ class Navigate(composer.Task):
         self._insertion_limit_m = (None if insertion_limit_margin_m is None
                                    else self._paths.lines[target].length_m + float(insertion_limit_margin_m))
 
-        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag)
+        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag, physics=physics)
         self._arena.attach(aorta)
         self._arena.frame_cameras(aorta.bounds_m)
         robot_frame = self._arena.attach(robot)
@@ -225,6 +233,12 @@ class Navigate(composer.Task):
     @property
     def target_position_m(self) -> np.ndarray:
         return np.asarray(self._aorta.targets[self._target_name], dtype=float)
+
+    @property
+    def physics_setting(self):
+        """The solver settings this task was built with: a name ("accurate", "fast") or a
+        `PhysicsSettings`."""
+        return self._physics_setting
 
     @property
     def max_steps(self) -> int:
