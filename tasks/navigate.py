@@ -193,6 +193,8 @@ class Navigate(composer.Task):
         self._success = False
         self._diverged = False
         self._contacts = None  # cached per control step
+        self._stepped_state = None  # (qpos, qvel) as the last control step left them
+        self._wall_force = None  # cs_physics.WallForceTotal for this physics (set per episode)
         self._tip_location = None  # the tip on the centerline tree, cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
@@ -311,12 +313,15 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
+        self._wall_force = cs_physics.WallForceTotal(self._wire_mask, self._vessel_mask)
+        self._stepped_state = None
         # composer runs the entities' hooks after this one; the start distances need the
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
         self._guidewire.initialize_episode(physics, random_state)
         physics.forward()
-        # No physics step yet: the reset's force is the start state's total.
-        self._mean_force_n = self.contact_forces(physics).total_n
+        # No physics step yet: the reset's force is the start state's total (just forwarded).
+        self._mean_force_n = cs_physics.wire_contacts(
+            physics, self._wire_mask, recompute=False, is_vessel_geom=self._vessel_mask).total_n
         self._contacts = None
         self._tip_location = None
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
@@ -329,16 +334,22 @@ class Navigate(composer.Task):
             physics.after_constraint_solve = self._add_physics_step_force
 
     def _add_physics_step_force(self, physics):
-        self._force_sum_n += cs_physics.total_contact_force_n(physics, self._wire_mask, self._vessel_mask)
+        self._force_sum_n += self._wall_force.total_n(physics.data.ptr)
         self._force_samples += 1
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
         self._contacts = None
+        self._stepped_state = None
         self._tip_location = None
         self._force_sum_n, self._force_samples = 0.0, 0
 
     def after_step(self, physics, random_state):
+        # dm_control's legacy step (composer's default) ends with mj_step1: the position
+        # and velocity stages of this state are current, so `contact_forces` needs only
+        # the rest of mj_forward, as long as the state is still this one.
+        if getattr(physics, "legacy_step", False):
+            self._stepped_state = (physics.data.qpos.copy(), physics.data.qvel.copy())
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
         self._escaped = not self._diverged and not self._containment.contains(self.wire_points_m(physics)).all()
@@ -473,9 +484,19 @@ class Navigate(composer.Task):
         """Wire-vessel contact forces for the current state (computed once per step).
 
         Contacts with the robot's guide channel are not forces on tissue and are left out.
+        In the state a control step left (positions and velocities as `after_step` saw
+        them) only the acceleration and constraint stages are computed
+        (`physics.forward_from_velocity_stage`: the same forces for about a third of an
+        ``mj_forward``); in any other state, a full ``mj_forward``.
         """
         if self._contacts is None:
-            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, is_vessel_geom=self._vessel_mask)
+            stepped = self._stepped_state
+            in_stepped_state = (stepped is not None and np.array_equal(stepped[0], physics.data.qpos)
+                                and np.array_equal(stepped[1], physics.data.qvel))
+            if in_stepped_state:
+                cs_physics.forward_from_velocity_stage(physics)
+            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, recompute=not in_stepped_state,
+                                                      is_vessel_geom=self._vessel_mask)
         return self._contacts
 
     @property
