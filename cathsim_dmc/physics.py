@@ -169,8 +169,8 @@ def forward_from_velocity_stage(physics) -> None:
     of the new state; only the actuation, acceleration and constraint-force stages are
     missing. This runs those (``mj_forwardSkip`` from ``mjSTAGE_VEL``, sensors
     included): the same data as ``mj_forward``, bit for bit, without the collision
-    and position stages (measured at about a third of ``mj_forward``'s cost in wall
-    contact). On any other state it gives stale contacts: use ``mj_forward`` there.
+    and position stages (0.35-0.45 of ``mj_forward``'s time, measured in the arch). On
+    any other state it gives stale contacts: use ``mj_forward`` there.
     """
     mujoco.mj_forwardSkip(physics.model.ptr, physics.data.ptr, mujoco.mjtStage.mjSTAGE_VEL, 0)
 
@@ -179,9 +179,10 @@ class WallForceTotal:
     """`total_contact_force_n` for fixed geom masks, cheap enough for every physics step.
 
     `total_n(data)` reads the same contacts and gives the same float, bit for bit, with
-    half the NumPy calls: one code per geom (1 wire, 2 vessel) marks the wire-vessel
-    pairs with one look-up, and the usual rows of an elliptic contact with friction
-    (normal, two tangents, consecutive) are gathered with one index.
+    fewer NumPy calls (0.65-0.77 of the time per physics step, measured on an expert
+    episode): one code per geom (1 wire, 2 vessel) marks the wire-vessel pairs with one
+    look-up, and the rows of elliptic contacts with friction (normal, two tangents,
+    consecutive) are gathered with one index.
     """
 
     _ROWS = np.arange(3)

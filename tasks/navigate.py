@@ -486,8 +486,8 @@ class Navigate(composer.Task):
         Contacts with the robot's guide channel are not forces on tissue and are left out.
         In the state a control step left (positions and velocities as `after_step` saw
         them) only the acceleration and constraint stages are computed
-        (`physics.forward_from_velocity_stage`: the same forces for about a third of an
-        ``mj_forward``); in any other state, a full ``mj_forward``.
+        (`physics.forward_from_velocity_stage`: the same forces for 0.35-0.45 of an
+        ``mj_forward``'s time); in any other state, a full ``mj_forward``.
         """
         if self._contacts is None:
             stepped = self._stepped_state

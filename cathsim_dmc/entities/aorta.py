@@ -10,7 +10,7 @@ With ``hulls_in_mjcf=False`` the wall and the visual mesh stay out of the MJCF t
 `add_geoms` puts them into a `mujoco.MjSpec` of the compiled scene instead, in the same
 order; `NavigationEnvironment` builds that way. There the wall pieces go into the world
 body rather than the aorta's (static) attachment body: MuJoCo's broadphase then costs
-about a seventh (154 -> 22 us per physics step in the issue 20 probe) with the same
+about a seventh (154 -> 22 us per physics step in issue 20's probe) with the same
 trajectories, bit for bit (`tests/test_build.py`, `tests/test_physics_settings.py`).
 """
 
@@ -143,9 +143,10 @@ class Aorta(composer.Entity):
         if body is None:
             body = spec.worldbody
         # The wall pieces go into the world body, placed where the attachment frame puts
-        # them. In a static non-world body (the frame) MuJoCo's broadphase handles
-        # them as one body and costs about 7x more per physics step (issue 20's probe: 154
-        # against 22 us); contacts, forces and trajectories come out bit-identical.
+        # them. In a static non-world body (the frame) MuJoCo's broadphase costs about 7x
+        # more (issue 20's probe: 154 against 22 us per physics step; a whole physics step
+        # 8-18% more, scripts/physics_probe.py); contacts, forces and trajectories come
+        # out bit-identical (tests/test_physics_settings.py).
         placement = {}
         if body.name != spec.worldbody.name:
             if body.parent.name != spec.worldbody.name:
