@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer, mjcf
 
+from cathsim_dmc.physics import DEFAULT_PHYSICS, PhysicsSettings, physics_settings
+
 PHYSICS_TIMESTEP_S = 0.005  # the guidewire's default; tasks take the wire's own
 BLOOD_DENSITY_KG_M3 = 1055.0  # whole blood (Kenner 1989)
 BLOOD_VISCOSITY_PA_S = 0.0035  # whole blood at high shear, 3.5-4 mPa s
@@ -19,12 +21,14 @@ class OperatingArena(composer.Arena):
     """Empty scene with lights, a top (AP) and a side (lateral) camera."""
 
     def _build(self, name: str = "operating_room", timestep_s: float = PHYSICS_TIMESTEP_S,
-               blood_drag: bool = False):
+               blood_drag: bool = False, physics: str | PhysicsSettings = DEFAULT_PHYSICS):
         """Builds the scene.
 
         Args:
           name: model name.
           timestep_s: physics timestep in seconds.
+          physics: solver settings, a name in `physics.PHYSICS_SETTINGS` ("accurate",
+            "fast") or a `PhysicsSettings`.
           blood_drag: apply MuJoCo's fluid forces for blood (density and viscosity
             above) to every moving body. At the wire's speeds (tens of mm/s) the drag
             is small against its stiffness and wall contact (the tip path after 30 full
@@ -44,6 +48,9 @@ class OperatingArena(composer.Arena):
         # thin and a capsule meets them at a point; 20% faster in wall contact with
         # the same penetration and no escapes (physics probe).
         root.option.flag.multiccd = "disable"
+        # Solver, iterations, Jacobian, noslip and sleep: all explicit, none inherited
+        # from dm_control's arena template (which sets noslip_iterations=5).
+        physics_settings(physics).apply(root)
         if blood_drag:
             # implicitfast would differentiate the fluid forces every step (measured 9x
             # slower); Euler keeps joint damping implicit and costs the same as before.

@@ -63,6 +63,7 @@ def build_task(
     `cathsim_dmc.anatomy.ArchParams`, optionally `preset`), cached after its first build.
     `image_size`, `renderer` ("raster" or "gl"), `style` ("camera" or "fluoro") and
     `noise_std` (grey levels) override the observation preset's image settings.
+    `physics="accurate"` (default) or `"fast"` picks the solver settings (`Navigate`).
     """
     validate(task, aorta, obs)
     check_options(**task_kwargs)

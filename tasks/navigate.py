@@ -38,7 +38,7 @@ ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values 
 
 
 def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
-                  progress_weight=None, aim_weight=None, **_others) -> None:
+                  progress_weight=None, aim_weight=None, physics=None, **_others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
@@ -57,6 +57,8 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_l
         check_number("progress_weight", progress_weight, 0.0)
     if aim_weight is not None:
         check_number("aim_weight", aim_weight, 0.0)
+    if physics is not None:  # a name in cs_physics.PHYSICS_SETTINGS ("accurate", "fast")
+        cs_physics.physics_settings(physics)
 
 
 @dataclass
@@ -98,6 +100,10 @@ class Navigate(composer.Task):
     aim / pi), faded out where the path runs straight ahead, so aiming is paid for the
     step it happens rather than only when the tip later moves.
 
+    Physics: `physics="accurate"` (the default; Newton) or `"fast"` (PGS capped at 10
+    iterations, dense Jacobian, noslip off, sleep on; about twice the speed in wall
+    contact), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
+
     Access: the robot's introducer sheath goes in through the aorta's open lower end
     (`Aorta.access_position_m`), its seal plate closing that end, and its tip (the
     robot's outlet) lies `robot.sheath_depth_m` (3 mm) inside the lumen; see
@@ -131,6 +137,7 @@ class Navigate(composer.Task):
         aim_weight: float = 0.0,
         insertion_limit_margin_m: float | None = None,
         extra_observations: tuple = (),
+        physics: str = cs_physics.DEFAULT_PHYSICS,
     ):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
@@ -140,7 +147,8 @@ class Navigate(composer.Task):
         self._target_name = target
         check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
                       insertion_limit_margin_m=insertion_limit_margin_m, progress_weight=progress_weight,
-                      aim_weight=aim_weight)
+                      aim_weight=aim_weight, physics=physics)
+        self._physics_setting = physics
         self._delta_m = float(delta_m)
         self._success_reward = float(success_reward)
         self._dense = bool(dense)
@@ -162,7 +170,7 @@ class Navigate(composer.Task):
         self._insertion_limit_m = (None if insertion_limit_margin_m is None
                                    else self._paths.lines[target].length_m + float(insertion_limit_margin_m))
 
-        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag)
+        self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag, physics=physics)
         self._arena.attach(aorta)
         self._arena.frame_cameras(aorta.bounds_m)
         robot_frame = self._arena.attach(robot)
@@ -185,6 +193,8 @@ class Navigate(composer.Task):
         self._success = False
         self._diverged = False
         self._contacts = None  # cached per control step
+        self._stepped_state = None  # (qpos, qvel) as the last control step left them
+        self._wall_force = None  # cs_physics.WallForceTotal for this physics (set per episode)
         self._tip_location = None  # the tip on the centerline tree, cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
         self._mean_force_n = 0.0
@@ -225,6 +235,12 @@ class Navigate(composer.Task):
     @property
     def target_position_m(self) -> np.ndarray:
         return np.asarray(self._aorta.targets[self._target_name], dtype=float)
+
+    @property
+    def physics_setting(self):
+        """The solver settings this task was built with: a name ("accurate", "fast") or a
+        `PhysicsSettings`."""
+        return self._physics_setting
 
     @property
     def max_steps(self) -> int:
@@ -297,12 +313,15 @@ class Navigate(composer.Task):
         self._wire_mask[physics.bind(self._guidewire.geoms).element_id] = True
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
+        self._wall_force = cs_physics.WallForceTotal(self._wire_mask, self._vessel_mask)
+        self._stepped_state = None
         # composer runs the entities' hooks after this one; the start distances need the
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
         self._guidewire.initialize_episode(physics, random_state)
         physics.forward()
-        # No physics step yet: the reset's force is the start state's total.
-        self._mean_force_n = self.contact_forces(physics).total_n
+        # No physics step yet: the reset's force is the start state's total (just forwarded).
+        self._mean_force_n = cs_physics.wire_contacts(
+            physics, self._wire_mask, recompute=False, is_vessel_geom=self._vessel_mask).total_n
         self._contacts = None
         self._tip_location = None
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
@@ -315,16 +334,22 @@ class Navigate(composer.Task):
             physics.after_constraint_solve = self._add_physics_step_force
 
     def _add_physics_step_force(self, physics):
-        self._force_sum_n += cs_physics.total_contact_force_n(physics, self._wire_mask, self._vessel_mask)
+        self._force_sum_n += self._wall_force.total_n(physics.data.ptr)
         self._force_samples += 1
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
         self._contacts = None
+        self._stepped_state = None
         self._tip_location = None
         self._force_sum_n, self._force_samples = 0.0, 0
 
     def after_step(self, physics, random_state):
+        # dm_control's legacy step (composer's default) ends with mj_step1: the position
+        # and velocity stages of this state are current, so `contact_forces` needs only
+        # the rest of mj_forward, as long as the state is still this one.
+        if getattr(physics, "legacy_step", False):
+            self._stepped_state = (physics.data.qpos.copy(), physics.data.qvel.copy())
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
         self._escaped = not self._diverged and not self._containment.contains(self.wire_points_m(physics)).all()
@@ -459,9 +484,19 @@ class Navigate(composer.Task):
         """Wire-vessel contact forces for the current state (computed once per step).
 
         Contacts with the robot's guide channel are not forces on tissue and are left out.
+        In the state a control step left (positions and velocities as `after_step` saw
+        them) only the acceleration and constraint stages are computed
+        (`physics.forward_from_velocity_stage`: the same forces for 0.35-0.45 of an
+        ``mj_forward``'s time); in any other state, a full ``mj_forward``.
         """
         if self._contacts is None:
-            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, is_vessel_geom=self._vessel_mask)
+            stepped = self._stepped_state
+            in_stepped_state = (stepped is not None and np.array_equal(stepped[0], physics.data.qpos)
+                                and np.array_equal(stepped[1], physics.data.qvel))
+            if in_stepped_state:
+                cs_physics.forward_from_velocity_stage(physics)
+            self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, recompute=not in_stepped_state,
+                                                      is_vessel_geom=self._vessel_mask)
         return self._contacts
 
     @property

@@ -44,6 +44,8 @@ CLI_CASES = [
     ("eval", ["seed=-1"], "seed=-1", True),
     ("eval", ["task.max_steps=0"], "max_steps=0", True),
     ("eval", ["task.delta_m=-1"], "delta_m=-1", True),
+    ("eval", ["task.physics=quick"], "physics='quick' is not a physics setting; choose one of ['accurate', 'fast']",
+     True),
     ("eval", ["policy={run}", "obs=enn"], "obs='internal'", True),
     # cathsim-train
     ("train", ["obs=xyz"], "enn", True),
@@ -197,6 +199,7 @@ API_CASES = [
     ("tasks.load(max_steps=0)", _load(max_steps=0), ValueError, "max_steps=0"),
     ("tasks.load(success_reward=nan)", _load(success_reward=float("nan")), ValueError, "success_reward=nan"),
     ("tasks.load(aim_weight=-1)", _load(aim_weight=-1), ValueError, "aim_weight=-1"),
+    ("tasks.load(physics='quick')", _load(physics="quick"), ValueError, "choose one of ['accurate', 'fast']"),
     ("negative Young's modulus", _load(guidewire={"youngs_modulus_pa": -40e9}), ValueError, "youngs_modulus_pa"),
     ("negative tip modulus", _load(guidewire={"tip_youngs_modulus_pa": -1.0}), ValueError, "tip_youngs_modulus_pa"),
     ("step before reset", _step_before_reset, RuntimeError, "reset()"),

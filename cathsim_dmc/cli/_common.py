@@ -117,7 +117,7 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     """`CathSimEnv(**...)` / `tasks.load(**...)` arguments from a tool's Hydra config.
 
     Reads the `task` group (target, success radius and reward, time limit, insertion
-    limit), `aorta` (name, generator parameters), `obs` (preset, renderer, style, extra
+    limit, physics settings), `aorta` (name, generator parameters), `obs` (preset, renderer, style, extra
     observations) and, with `training`, the training reward (`reward` group): evaluation
     always scores the paper's task. With `policy` a CheckpointPolicy, its observation
     preset and the options it was trained with win. The task's values are checked here,
@@ -133,6 +133,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
                   dense=task.dense, max_steps=task.max_steps)
     if task.get("insertion_limit_margin_m") is not None:
         kwargs["insertion_limit_margin_m"] = task.insertion_limit_margin_m
+    if task.get("physics") is not None:
+        kwargs["physics"] = task.physics
     params = cfg.aorta.get("params")
     if params is not None:
         kwargs["aorta_params"] = OmegaConf.to_container(params, resolve=True)

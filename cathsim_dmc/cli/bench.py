@@ -3,6 +3,7 @@
     cathsim-bench                                   # bca/type1, obs internal and enn
     cathsim-bench aortas=[type1,type2] presets=[internal] steps=300
     cathsim-bench presets=[enn] renderers=[raster,gl] styles=[camera,fluoro]
+    cathsim-bench task.physics=fast                 # the fast solver settings
 
 For each (aorta, observation preset), in a fresh process: env build time (construct +
 first reset, which compiles), reset time without recompilation, control steps/s and
@@ -29,7 +30,8 @@ log = logging.getLogger("cathsim-bench")
 SCENARIO_ACTION = (1.0, 0.2)  # insertion, rotation
 
 
-def measure(task: str, aorta: str, obs: str, steps: int, renderer: str = "-", style: str = "-") -> dict:
+def measure(task: str, aorta: str, obs: str, steps: int, renderer: str = "-", style: str = "-",
+            physics: str | None = None) -> dict:
     """One measurement, meant to run in its own process (for a clean peak RSS)."""
     import resource
 
@@ -40,7 +42,8 @@ def measure(task: str, aorta: str, obs: str, steps: int, renderer: str = "-", st
 
     image_options = {} if renderer == "-" else dict(renderer=renderer, style=style)
     start = time.perf_counter()
-    env = tasks.load(task, aorta, obs=obs, seed=0, **image_options)
+    physics_options = {} if physics is None else dict(physics=physics)
+    env = tasks.load(task, aorta, obs=obs, seed=0, **physics_options, **image_options)
     env.reset()
     build_s = time.perf_counter() - start
     resets = []
@@ -117,6 +120,10 @@ def run(cfg) -> list:
     from cathsim_dmc import tasks
     from cathsim_dmc.observables import IMAGE_STYLES, OBSERVATION_PRESETS, RENDERERS
 
+    from cathsim_dmc.physics import DEFAULT_PHYSICS
+
+    physics = cfg.task.get("physics") or DEFAULT_PHYSICS
+    tasks.check_options(physics=physics)
     for aorta in cfg.aortas:
         tasks.validate(cfg.task.target, aorta)
     for obs in cfg.presets:
@@ -127,6 +134,7 @@ def run(cfg) -> list:
                 raise ValueError(f"{name}: {value!r} is not one of {list(valid)}")
     context = multiprocessing.get_context("spawn")
     print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task.target}, "
+          f"physics {physics}, "
           f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}")
     header = ("| aorta | obs | renderer | style | control steps/s | x real time | raw mj_step steps/s | overhead "
               "| contacts | build s | reset ms | peak RSS MB | image ms |")
@@ -142,7 +150,7 @@ def run(cfg) -> list:
                 for _ in range(cfg.repeats):
                     with context.Pool(1) as pool:
                         runs.append(pool.apply(_measure_in_subprocess,
-                                               ((cfg.task.target, aorta, obs, cfg.steps, renderer, style),)))
+                                               ((cfg.task.target, aorta, obs, cfg.steps, renderer, style, physics),)))
                 med = {k: (statistics.median(r[k] for r in runs) if isinstance(runs[0][k], float) else runs[0][k])
                        for k in runs[0]}
                 rows.append(med)

@@ -8,7 +8,10 @@ group 1, so drawing the vessel costs one mesh whatever the wall's piece count.
 With ``hulls_in_mjcf=False`` the wall and the visual mesh stay out of the MJCF tree
 (thousands of mesh elements take seconds to build, serialise and parse) and
 `add_geoms` puts them into a `mujoco.MjSpec` of the compiled scene instead, in the same
-order, so the model is the same; `NavigationEnvironment` builds that way.
+order; `NavigationEnvironment` builds that way. There the wall pieces go into the world
+body rather than the aorta's (static) attachment body: MuJoCo's broadphase then costs
+about a seventh (154 -> 22 us per physics step in issue 20's probe) with the same
+trajectories, bit for bit (`tests/test_build.py`, `tests/test_physics_settings.py`).
 """
 
 from __future__ import annotations
@@ -75,6 +78,8 @@ class Aorta(composer.Entity):
             (works with any composer environment). False leaves them to `add_geoms`,
             which an environment must call on the scene's spec before compiling (as
             `NavigationEnvironment` does); a physics without them raises at reset.
+            The MJCF path leaves the pieces in the aorta's attachment body, where the
+            broadphase costs more (see `add_geoms`); the results are the same.
           contact_margin_m: contact margin of the wall pieces, in metres. The pieces
             are moved outward by the same distance (`wall_pieces`), so the contact
             constraint still starts on the lumen surface, but the convex pieces lie this
@@ -137,20 +142,32 @@ class Aorta(composer.Entity):
         body = spec.body(prefix) if prefix else spec.worldbody
         if body is None:
             body = spec.worldbody
+        # The wall pieces go into the world body, placed where the attachment frame puts
+        # them. In a static non-world body (the frame) MuJoCo's broadphase costs about 7x
+        # more (issue 20's probe: 154 against 22 us per physics step; a whole physics step
+        # 8-18% more, scripts/physics_probe.py); contacts, forces and trajectories come
+        # out bit-identical (tests/test_physics_settings.py).
+        placement = {}
+        if body.name != spec.worldbody.name:
+            if body.parent.name != spec.worldbody.name:
+                raise ValueError(f"aorta {self.name!r} is attached below body {body.parent.name!r}: attach it to "
+                                 f"the arena (the world body) so that its wall can go into the world body")
+            if np.any(body.pos != 0) or np.any(body.quat != [1, 0, 0, 0]):
+                placement = dict(pos=np.array(body.pos), quat=np.array(body.quat))
 
-        def add(name, vertices, faces, settings):
+        def add(parent, name, vertices, faces, settings):
             mesh = spec.add_mesh(name=prefix + name)
             mesh.uservert = np.asarray(vertices, dtype=float).ravel()
             if faces is not None:
                 mesh.userface = np.asarray(faces).ravel()
-            geom = body.add_geom(name=prefix + name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=prefix + name)
+            geom = parent.add_geom(name=prefix + name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=prefix + name)
             for key, value in settings.items():
                 setattr(geom, key, value)
 
         for i, hull in enumerate(self.wall_pieces):
-            add(f"hull{i}", hull, None, self._wall)
+            add(spec.worldbody, f"hull{i}", hull, None, {**self._wall, **placement})
         # As in the MJCF path, the visual geom inherits the wall's settings but draws only.
-        add("lumen", self._asset.visual_vertices, self._asset.visual_faces, {**self._wall, **self._visual})
+        add(body, "lumen", self._asset.visual_vertices, self._asset.visual_faces, {**self._wall, **self._visual})
 
     @property
     def geoms_key(self) -> bytes:
@@ -159,7 +176,7 @@ class Aorta(composer.Entity):
         # The pieces as simulated (moved by the margin), so that a change in how they are
         # moved never reuses a stale compiled model.
         pieces = np.concatenate(self.wall_pieces) if self.wall_pieces else np.zeros((0, 3))
-        return b"".join([repr((self._wall, self._visual)).encode(), pieces.tobytes(),
+        return b"".join([b"wall in worldbody", repr((self._wall, self._visual)).encode(), pieces.tobytes(),
                          asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
 
     def initialize_episode(self, physics, random_state):
