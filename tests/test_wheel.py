@@ -31,3 +31,9 @@ def test_wheel_installs_and_loads_a_task(tmp_path, repo_root):
                             timeout=600, env={**os.environ, "PYTHONPATH": str(target)})
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().endswith("ok")
+    # A tool from the wheel composes its config, shared Hydra settings included.
+    tool = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", "policy=forward", "episodes=1",
+                           "task.max_steps=2", "video=false", f"hydra.run.dir={tmp_path / 'eval'}"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(target)})
+    assert tool.returncode == 0, tool.stderr[-2000:]
+    assert (tmp_path / "eval" / "metrics.json").is_file()
