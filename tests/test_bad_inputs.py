@@ -81,6 +81,7 @@ CLI_CASES = [
     ("train", ["trainer.totl_timesteps=5"], "trainer.totl_timesteps", True),
     ("eval", ["seed=[1"], "seed=[1", True),
     ("bench", ["hydra/launcher=nope"], "nope", True),
+    ("bench", ["physics_settings=[accurate,quick]"], "quick", True),
     # cathsim-forcecheck (more cases: test_forcecheck.py)
     ("forcecheck", ["mean_n=1", "std_n=1"], "trajectories=", True),
     ("forcecheck", ["trajectories={tmp}/a_file.npz", "mean_n=abc", "std_n=1"], "mean_n='abc'", True),

@@ -3,7 +3,7 @@
     cathsim-bench                                   # bca/type1, obs internal and enn
     cathsim-bench aortas=[type1,type2] presets=[internal] steps=300
     cathsim-bench presets=[enn] renderers=[raster,gl] styles=[camera,fluoro]
-    cathsim-bench task.physics=fast                 # the fast solver settings
+    cathsim-bench physics_settings=[fast]           # one solver setting (default: both, side by side)
 
 For each (aorta, observation preset), in a fresh process: env build time (construct +
 first reset, which compiles), reset time without recompilation, control steps/s and
@@ -120,10 +120,9 @@ def run(cfg) -> list:
     from cathsim_dmc import tasks
     from cathsim_dmc.observables import IMAGE_STYLES, OBSERVATION_PRESETS, RENDERERS
 
-    from cathsim_dmc.physics import DEFAULT_PHYSICS
-
-    physics = cfg.task.get("physics") or DEFAULT_PHYSICS
-    tasks.check_options(physics=physics)
+    settings = list(cfg.physics_settings)
+    for physics in settings:
+        tasks.check_options(physics=physics)
     for aorta in cfg.aortas:
         tasks.validate(cfg.task.target, aorta)
     for obs in cfg.presets:
@@ -134,9 +133,9 @@ def run(cfg) -> list:
                 raise ValueError(f"{name}: {value!r} is not one of {list(valid)}")
     context = multiprocessing.get_context("spawn")
     print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task.target}, "
-          f"physics {physics}, "
-          f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}")
-    header = ("| aorta | obs | renderer | style | control steps/s | x real time | raw mj_step steps/s | overhead "
+          f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}; the physics "
+          f"settings of one row group are measured in turn, repeat by repeat, so a noisy machine treats them alike")
+    header = ("| aorta | obs | renderer | style | physics | control steps/s | x real time | raw mj_step steps/s | overhead "
               "| contacts | build s | reset ms | peak RSS MB | image ms |")
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
@@ -146,18 +145,23 @@ def run(cfg) -> list:
             has_images = bool(OBSERVATION_PRESETS[obs].enabled & {"pixels", "guidewire_mask"})
             image_settings = ([(r, s) for r in cfg.renderers for s in cfg.styles] if has_images else [("-", "-")])
             for renderer, style in image_settings:
-                runs = []
+                runs = {physics: [] for physics in settings}
                 for _ in range(cfg.repeats):
-                    with context.Pool(1) as pool:
-                        runs.append(pool.apply(_measure_in_subprocess,
-                                               ((cfg.task.target, aorta, obs, cfg.steps, renderer, style, physics),)))
-                med = {k: (statistics.median(r[k] for r in runs) if isinstance(runs[0][k], float) else runs[0][k])
-                       for k in runs[0]}
-                rows.append(med)
-                print(f"| {aorta} | {obs} | {renderer} | {style} | {med['steps_per_s']:.1f} | {med['realtime']:.2f} | "
-                      f"{med['raw_steps_per_s']:.1f} | {med['overhead']:.2f} | {med['mean_contacts']:.0f} | "
-                      f"{med['build_s']:.2f} | {med['reset_ms']:.1f} | {med['peak_rss_mb']:.0f} | "
-                      f"{med['image_ms']:.2f} |", flush=True)
+                    for physics in settings:
+                        with context.Pool(1) as pool:
+                            runs[physics].append(pool.apply(
+                                _measure_in_subprocess,
+                                ((cfg.task.target, aorta, obs, cfg.steps, renderer, style, physics),)))
+                for physics in settings:
+                    found = runs[physics]
+                    med = {k: (statistics.median(r[k] for r in found) if isinstance(found[0][k], float)
+                               else found[0][k]) for k in found[0]}
+                    med["physics"] = physics
+                    rows.append(med)
+                    print(f"| {aorta} | {obs} | {renderer} | {style} | {physics} | {med['steps_per_s']:.1f} | "
+                          f"{med['realtime']:.2f} | {med['raw_steps_per_s']:.1f} | {med['overhead']:.2f} | "
+                          f"{med['mean_contacts']:.0f} | {med['build_s']:.2f} | {med['reset_ms']:.1f} | "
+                          f"{med['peak_rss_mb']:.0f} | {med['image_ms']:.2f} |", flush=True)
     return rows
 
 
