@@ -171,7 +171,7 @@ def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None 
     write_atomic(path, lambda tmp: torch.save(state, tmp))
     info = {"algo": "bc", "obs": PRESET_FOR_IMAGE[image_key], "image_key": image_key,
             "image_options": dict(image_options or {}), **(extra or {})}
-    (run_dir / POLICY_FILE).write_text(json.dumps(info, indent=2))
+    write_atomic(run_dir / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
     return path
 
 

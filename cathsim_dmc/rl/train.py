@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cathsim_dmc import run_files
+
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.zip"
 REPLAY_BUFFER_FORMAT = "replay_buffer_step_{}.pkl"  # saved with the checkpoint of that step
@@ -53,11 +55,10 @@ def normalize_observations(env, resume_from: Path | None = None):
     from stable_baselines3.common.vec_env import VecNormalize
 
     from cathsim_dmc.gym import IMAGE_KEYS
-    from cathsim_dmc.run_files import load_normalizer, normalizer_path
 
     keys = [k for k in env.observation_space.spaces if k not in IMAGE_KEYS]
-    if resume_from is not None and normalizer_path(resume_from).is_file():
-        normalizer = load_normalizer(normalizer_path(resume_from))
+    if resume_from is not None and run_files.normalizer_path(resume_from).is_file():
+        normalizer = run_files.load_normalizer(run_files.normalizer_path(resume_from))
         normalizer.set_venv(env)
         normalizer.training = True
         return normalizer
@@ -298,15 +299,9 @@ def _callbacks():
         def _evaluate(self):
             from cathsim_dmc.evaluation import run_episodes
 
-            normalizer = self.model.get_vec_normalize_env()
-
-            def act(observation, env):
-                if normalizer is not None:
-                    observation = normalizer.normalize_obs(observation)
-                return self.model.predict(observation, deterministic=True)[0]
-
-            summaries = run_episodes(self.env, act, self.episodes, self.seed, show_progress=False,
-                                     log_episodes=False)
+            act = deterministic_policy(self.model)
+            summaries = run_episodes(self.env, lambda observation, env: act(observation), self.episodes, self.seed,
+                                     show_progress=False, log_episodes=False)
             returns = [s["return"] for s in summaries]
             successes = [float(s["success"]) for s in summaries]
             lengths = [s["steps"] for s in summaries]
@@ -329,20 +324,12 @@ def _callbacks():
     return EpisodeStats, Checkpoints, Progress, PeriodicEval
 
 
-def _atomic(path: Path, write) -> None:
-    from cathsim_dmc.run_files import write_atomic
-
-    write_atomic(path, write)
-
-
 def save_model(model, path: Path) -> None:
     """`model` to `path` (atomic), and its observation normaliser beside it if it has one."""
-    from cathsim_dmc.run_files import normalizer_path
-
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
-        _atomic(normalizer_path(path), lambda tmp: normalizer.save(tmp))
-    _atomic(path, lambda tmp: model.save(tmp))
+        run_files.write_atomic(run_files.normalizer_path(path), lambda tmp: normalizer.save(tmp))
+    run_files.write_atomic(path, lambda tmp: model.save(tmp))
 
 
 def replay_buffer_path(folder: Path, step: int) -> Path:
@@ -375,19 +362,19 @@ def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
     that step's replay buffer still on disk (an older buffer is deleted only after the new
     last.zip is in place), so `resume_checkpoint` always finds a matching pair.
     """
-    from cathsim_dmc.run_files import normalizer_path
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     step = int(model.num_timesteps)
     if replay_buffer:
-        _atomic(replay_buffer_path(folder, step), lambda tmp: model.save_replay_buffer(tmp))
+        run_files.write_atomic(replay_buffer_path(folder, step), lambda tmp: model.save_replay_buffer(tmp))
     step_file = folder / f"step_{step}.zip"
     save_model(model, step_file)
     last = folder / LAST_CHECKPOINT
-    if normalizer_path(step_file).is_file():
-        _atomic(normalizer_path(last), lambda tmp: tmp.write_bytes(normalizer_path(step_file).read_bytes()))
-    _atomic(last, lambda tmp: tmp.write_bytes(step_file.read_bytes()))
+    step_normalizer = run_files.normalizer_path(step_file)
+    if step_normalizer.is_file():
+        copy = step_normalizer.read_bytes()
+        run_files.write_atomic(run_files.normalizer_path(last), lambda tmp: tmp.write_bytes(copy))
+    run_files.write_atomic(last, lambda tmp: tmp.write_bytes(step_file.read_bytes()))
     for old_step, path in _replay_buffer_steps(folder).items():
         if old_step != step or not replay_buffer:
             path.unlink(missing_ok=True)
@@ -402,13 +389,11 @@ def resume_checkpoint(folder: Path) -> tuple:
     last.zip), and refuses, naming the files, a replay buffer that cannot belong to
     last.zip: resuming with it would pair the weights of one step with the data of another.
     """
-    from cathsim_dmc.run_files import remove_temporaries
-
     folder = Path(folder)
     last = folder / LAST_CHECKPOINT
     if not last.is_file():
         raise FileNotFoundError(f"nothing to resume: no {LAST_CHECKPOINT} in {folder}")
-    remove_temporaries(folder)
+    run_files.remove_temporaries(folder)
     step = checkpoint_step(last)
     buffers = _replay_buffer_steps(folder)
     for newer in [s for s in buffers if s > step]:  # written by a checkpoint that was never committed
@@ -442,7 +427,7 @@ def keep_if_best(model, run_dir: Path, step: int, success_rate: float, mean_retu
     record_file.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, record_file.parent / BEST_MODEL)
     record = {"step": int(step), "success_rate": success_rate, "mean_return": mean_return}
-    _atomic(record_file, lambda tmp: tmp.write_text(json.dumps(record)))
+    run_files.write_atomic(record_file, lambda tmp: tmp.write_text(json.dumps(record)))
     return True
 
 
@@ -493,11 +478,9 @@ def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_
                       env_options: dict | None = None, normalize_observations: bool = False) -> None:
     """policy.json: what evaluating the checkpoint needs (observation preset, image options,
     and the environment options it was trained with that change what it sees or drives)."""
-    from cathsim_dmc.run_files import POLICY_FILE, write_atomic
-
     info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta,
             "env_options": dict(env_options or {}), "normalize_observations": bool(normalize_observations)}
-    write_atomic(Path(run_dir) / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info)))
+    run_files.write_atomic(Path(run_dir) / run_files.POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info)))
 
 
 def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
@@ -547,9 +530,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
             log.warning("no replay buffer was saved with %s (step %d): continuing with an empty one", last, step)
         grow_replay_buffer(model, capacity)
     else:
-        from cathsim_dmc.run_files import remove_temporaries
-
-        remove_temporaries(ckpt_dir)
+        run_files.remove_temporaries(ckpt_dir)
         model = build_sac(env, algo, seed, trainer["device"], tb_dir, demos if _use_demos(demos) else None)
         write_policy_file(run_dir, obs, task, aorta, image_options, env_options,
                           bool(trainer.get("normalize_observations")))
@@ -583,12 +564,48 @@ def _use_demos(demos: dict | None) -> bool:
     return bool(demos) and int(demos.get("episodes", 0)) > 0
 
 
+def deterministic_policy(model):
+    """`act(observation) -> action` of `model`'s deterministic policy, through its
+    observation normaliser if it has one (as the periodic evaluation and cathsim-eval see it)."""
+    normalizer = model.get_vec_normalize_env()
+
+    def act(observation):
+        if normalizer is not None:
+            observation = normalizer.normalize_obs(observation)
+        return model.predict(observation, deterministic=True)[0]
+
+    return act
+
+
+def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
+    """`demos["takeover_rounds"]` rounds: takeover demonstrations of the current actor
+    (`rl.demos.takeover_transitions`) join the demonstrations, then the actor is
+    re-trained on them for half of `pretrain_actor_steps`."""
+    from cathsim_dmc.rl.demos import add_transitions, pretrain_actor, takeover_transitions
+
+    env, student = make_demo_env(), deterministic_policy(model)
+    try:
+        for round_index in range(int(demos["takeover_rounds"])):
+            t0 = time.perf_counter()
+            transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
+                                               seed=40_000 + 1000 * seed + 100 * round_index,
+                                               max_student_steps=int(demos["takeover_max_student_steps"]))
+            add_transitions(model.replay_buffer, transitions)
+            loss = pretrain_actor(model, int(demos.get("pretrain_actor_steps", 0)) // 2)
+            log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
+                     "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
+                     transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
+                     loss, time.perf_counter() - t0)
+    finally:
+        env.close()
+
+
 def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True) -> None:
     """Record the expert's episodes (or read them from `demos["path"]`) into the model's
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
     them; each stage is logged with its size, loss and time."""
     from cathsim_dmc.rl.demos import (DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions,
-                                      pretrain_actor, takeover_transitions, warm_up_critic)
+                                      pretrain_actor, warm_up_critic)
 
     buffer = model.replay_buffer
     if not isinstance(buffer, DemoReplayBuffer):
@@ -619,30 +636,8 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]))
             log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
                      int(demos["pretrain_actor_steps"]), loss)
-        rounds = int(demos.get("takeover_rounds") or 0)
-        if rounds > 0:
-            env = make_demo_env()
-            normalizer = model.get_vec_normalize_env()
-
-            def student(observation):
-                if normalizer is not None:
-                    observation = normalizer.normalize_obs(observation)
-                return model.predict(observation, deterministic=True)[0]
-
-            try:
-                for round_index in range(rounds):
-                    t0 = time.perf_counter()
-                    transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
-                                                       seed=40_000 + 1000 * seed + 100 * round_index,
-                                                       max_student_steps=int(demos["takeover_max_student_steps"]))
-                    add_transitions(buffer, transitions)
-                    loss = pretrain_actor(model, int(demos.get("pretrain_actor_steps", 0)) // 2)
-                    log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
-                             "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
-                             transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
-                             loss, time.perf_counter() - t0)
-            finally:
-                env.close()
+        if int(demos.get("takeover_rounds") or 0) > 0:
+            _takeover_rounds(model, demos, make_demo_env, seed)
         if int(demos.get("critic_warmup_steps", 0)) > 0:
             loss = warm_up_critic(model, int(demos["critic_warmup_steps"]))
             log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)
