@@ -34,6 +34,10 @@ VARIANTS = {
     # Progress plus aim shaping (reward=aim): turning the bend towards the path is paid for.
     "demos_aim_internal": (["obs=internal", "algo=sac_tuned", "reward=aim", *DEMOS], 20_000),
     "demos_bc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5"], 20_000),
+    "demos_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
+                              "demos.bc_filter=none"], 20_000),
+    "demos_bcslow_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
+                               "algo.actor_learning_rate_scale=0.3"], 20_000),
     "demos_takeover_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
                                  "demos.takeover_rounds=3", "demos.takeover_episodes=10",
                                  "demos.takeover_max_student_steps=150"], 20_000),

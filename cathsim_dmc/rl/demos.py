@@ -294,8 +294,14 @@ class SACfD(SAC):
     The actor's loss gains `bc_weight` x mean|Q| x the squared error between its
     deterministic action and the expert's, on the demonstration part of the batch, counted only where
     the critic rates the expert's action above the actor's (the Q-filter of Nair et al.,
-    2018): the agent imitates until it has found something the critic values more.
-    With `bc_weight` 0 this is plain SAC.
+    2018): the agent imitates until it has found something the critic values more. With
+    `bc_filter="none"` it is counted on every demonstration state (TD3+BC's unfiltered
+    term, Fujimoto and Gu, 2021), which keeps the actor near the expert even where the
+    critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
+
+    `actor_learning_rate_scale` < 1 gives the actor a smaller learning rate than the
+    critic (the critic's follows `learning_rate`), so the policy follows the critic more
+    slowly.
 
     With `actor_average_tau` > 0 it also keeps an exponential moving average of the
     actor's weights (each update moves it `actor_average_tau` of the way to the current
@@ -304,8 +310,17 @@ class SACfD(SAC):
     critic (weight averaging in RL: Nikishin et al., 2018).
     """
 
-    def __init__(self, *args, bc_weight: float = 0.0, actor_average_tau: float = 0.0, **kwargs):
+    BC_FILTERS = ("q", "none")
+
+    def __init__(self, *args, bc_weight: float = 0.0, bc_filter: str = "q", actor_average_tau: float = 0.0,
+                 actor_learning_rate_scale: float = 1.0, **kwargs):
         self.bc_weight = float(bc_weight)
+        if bc_filter not in self.BC_FILTERS:
+            raise ValueError(f"bc_filter={bc_filter!r}; valid: {', '.join(self.BC_FILTERS)}")
+        self.bc_filter = bc_filter
+        if not 0.0 < float(actor_learning_rate_scale) <= 1.0:
+            raise ValueError(f"actor_learning_rate_scale={actor_learning_rate_scale!r} must be within (0, 1]")
+        self.actor_learning_rate_scale = float(actor_learning_rate_scale)
         if not 0.0 <= float(actor_average_tau) <= 1.0:
             raise ValueError(f"actor_average_tau={actor_average_tau!r} must be within [0, 1] (0: no average)")
         self.actor_average_tau = float(actor_average_tau)
@@ -315,6 +330,12 @@ class SACfD(SAC):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         self._train_steps(gradient_steps, batch_size)
         self._update_actor_average(gradient_steps)
+
+    def _update_learning_rate(self, optimizers) -> None:
+        super()._update_learning_rate(optimizers)
+        if self.actor_learning_rate_scale != 1.0:
+            for group in self.actor.optimizer.param_groups:
+                group["lr"] *= self.actor_learning_rate_scale
 
     def _update_actor_average(self, gradient_steps: int) -> None:
         if self.actor_average_tau <= 0:
@@ -380,8 +401,9 @@ class SACfD(SAC):
             with torch.no_grad():
                 q_expert = torch.cat(self.critic(demo_obs, expert), dim=1).min(dim=1)[0]
                 q_actor = torch.cat(self.critic(demo_obs, deterministic), dim=1).min(dim=1)[0]
-                better = (q_expert > q_actor).float()
-            bc_loss = (better * ((deterministic - expert) ** 2).sum(dim=1)).mean()
+                better = (q_expert > q_actor).float()  # logged as bc_share under either filter
+                counted = better if self.bc_filter == "q" else torch.ones_like(better)
+            bc_loss = (counted * ((deterministic - expert) ** 2).sum(dim=1)).mean()
             # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
             # same whatever the reward's scale.
             loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
