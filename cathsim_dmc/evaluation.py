@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from cathsim_dmc.paths import aorta_label
+
 log = logging.getLogger("cathsim-eval")
 
 METRICS_JSON = "metrics.json"
@@ -98,7 +100,7 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
 
 def _row_label(label: dict) -> dict:
     policy = label["policy"] if label.get("seed") is None else f"{label['policy']} (seed {label['seed']})"
-    return {"Target": label["task"].upper(), "Aorta": label["aorta"], "Policy": policy}
+    return {"Target": label["task"].upper(), "Aorta": aorta_label(label["aorta"]), "Policy": policy}
 
 
 def combine_reports(folder) -> str:

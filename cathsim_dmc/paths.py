@@ -30,3 +30,10 @@ def resolve_asset(asset) -> Path:
         return assets_root() / str(asset)
     raise ValueError(
         f"aorta={str(asset)!r} is neither a shipped aorta {list(available_aortas())} nor an asset folder")
+
+
+def aorta_label(aorta) -> str:
+    """How tables and run folders name an aorta: a shipped name as it is, an asset folder
+    by its own name (not its path)."""
+    text = str(aorta)
+    return Path(text).name if ("/" in text or "\\" in text) else text

@@ -116,3 +116,27 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     assert env_kwargs(_compose("eval", ["task.physics=fast"]))["physics"] == "fast"
     # Tools without an obs group (teleop, export) leave the preset to the environment.
     assert "obs" not in env_kwargs(_compose("teleop", ["aorta=type2"]))
+
+
+def test_an_asset_folder_is_an_aorta_and_names_the_run_and_the_table(tmp_path):
+    import shutil
+
+    from cathsim_dmc.paths import resolve_asset
+
+    folder = tmp_path / "my_phantom"
+    shutil.copytree(resolve_asset("type1"), folder)
+    result = _run(["task=bca", f"aorta={folder}", "policy=forward", "episodes=1", "task.max_steps=3", "video=false"],
+                  tmp_path)
+    assert result.returncode == 0, result.stderr
+    runs = list((tmp_path / "outputs" / "eval").iterdir())
+    assert [run.name for run in runs] == ["bca-my_phantom"]
+    table = next(runs[0].iterdir()) / "metrics.md"
+    assert "| BCA | my_phantom | forward |" in table.read_text()
+
+
+@pytest.mark.parametrize("value, reason", [("nowhere", "not a folder"), (".", "a folder without meta.json")])
+def test_an_aorta_that_is_no_asset_folder_is_one_line_and_exit_2(tmp_path, value, reason):
+    result = _run(["task=bca", f"aorta={value}", "policy=forward", "episodes=1"], tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and reason in lines[0] and "type1" in lines[0]

@@ -11,6 +11,7 @@ import sys
 from typing import Callable, Mapping, Sequence
 
 USAGE_ERROR = 2
+ASSET_FOLDER_OPTION = "folder"  # conf/aorta/folder.yaml: an asset folder given as aorta=DIR
 
 
 def fail(message: str) -> "NoReturn":  # noqa: F821
@@ -34,13 +35,37 @@ def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequ
             continue
         valid = list(choices[key]())
         for item in value.split(","):
-            if item in valid:
+            if item in valid or (key, item) == ("aorta", ASSET_FOLDER_OPTION):  # from expand_aorta_folder
                 continue
             if key in paths_allowed:
                 if not Path(item).exists():
                     fail(f"{key}={item!r} is neither one of {valid} nor an existing checkpoint path")
             else:
                 fail(f"{key}={item!r} is not valid; choose one of {valid}")
+
+
+def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
+    """`aorta=DIR` (an asset folder: meta.json inside) -> `aorta=folder aorta.name=<DIR,
+    absolute> aorta.label=<DIR's name>`, which Hydra can compose: the run folder and the
+    tables then carry the folder's name. Other arguments pass unchanged; a value that is
+    neither a known aorta nor an asset folder exits with one line.
+    """
+    from pathlib import Path
+
+    out = []
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if key != "aorta" or not sep or value in choices or "," in value:
+            out.append(arg)
+            continue
+        folder = Path(value).expanduser()
+        if not (folder / "meta.json").is_file():
+            what = "a folder without meta.json" if folder.is_dir() else "not a folder"
+            fail(f"aorta={value!r} is neither one of {list(choices)} nor an asset folder ({what}; "
+                 "make one with cathsim-aorta)")
+        folder = folder.resolve()
+        out += [f"aorta={ASSET_FOLDER_OPTION}", f"aorta.name={folder}", f"aorta.label={folder.name}"]
+    return out
 
 
 def check_composes(config_name: str, argv: Sequence[str]) -> None:
@@ -79,6 +104,8 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
 
     from cathsim_dmc.paths import conf_root
 
+    if "aorta" in argv_choices:
+        sys.argv[1:] = expand_aorta_folder(sys.argv[1:], list(argv_choices["aorta"]()))
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)
     check_composes(config_name, sys.argv[1:])
 
