@@ -157,6 +157,53 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     print(assert_one_line_error(proc, "import needs entry="))
 
 
+def _bca_profile(src):
+    from cathsim_dmc.anatomy.validate import _lumen_mesh, lumen_profile
+
+    return lumen_profile(src.centerlines["bca"].points, *_lumen_mesh(src))
+
+
+def _shallow_bca_site(src):
+    """A point on the BCA centerline 2 mm past the middle of its opening's flare (the
+    BCA's lumen radius there is about 8 mm)."""
+    from cathsim_dmc.anatomy.polyline import arclength
+    from cathsim_dmc.anatomy.validate import branch_depth
+
+    pts, rad = _bca_profile(src)
+    depth, _ = branch_depth(pts, rad)
+    s = arclength(pts)
+    return pts[np.searchsorted(s, s[-1] - depth + 0.002)]
+
+
+def test_sites_that_make_no_task_are_refused_before_the_remesh(type1_mm_stl, tmp_path):
+    stl, src = type1_mm_stl
+    entry = f"entry={vec(src.entry_position, 1e3)}"
+    at_entry = src.entry_position + [0, 0.003, 0]
+    proc = run("import", f"mesh={stl}", entry, f"sites.bca={vec(at_entry, 1e3)}", f"out={tmp_path / 'x'}")
+    print(assert_one_line_error(proc, "sites.bca=", "coincides with the entry"))
+    proc = run("import", f"mesh={stl}", entry, f"sites.bca={vec(_shallow_bca_site(src), 1e3)}",
+               f"out={tmp_path / 'x'}")
+    print(assert_one_line_error(proc, "sites.bca=", "into its branch", "move it deeper"))
+    assert not (tmp_path / "x").exists()
+
+
+def test_site_placement_checks_on_the_shipped_centerlines():
+    from cathsim_dmc.anatomy.validate import site_placement_problems
+
+    from cathsim_dmc.anatomy.validate import _lumen_mesh, lumen_profile
+
+    src = load_asset(ROOT / "assets" / "type1")
+    lines = {k: lumen_profile(c.points, *_lumen_mesh(src)) for k, c in src.centerlines.items()}
+    assert site_placement_problems(lines) == []  # shipped sites sit 36-38 mm past their openings
+    pts, rad = lines["bca"]
+    shallow = _shallow_bca_site(src)
+    cut = int(np.argmin(np.linalg.norm(pts - shallow, axis=1))) + 1
+    problems = site_placement_problems({"bca": (pts[:cut], rad[:cut])})
+    assert len(problems) == 1 and "site bca is" in problems[0] and "into its branch" in problems[0]
+    problems = site_placement_problems({"bca": (pts[:3], rad[:3])})
+    assert len(problems) == 1 and "coincides with the entry" in problems[0]
+
+
 def test_build_a_generated_variant(tmp_path):
     out = tmp_path / "my_arch"
     proc = run("build", "name=my_arch", "arch_type=3", "seed=7", f"out={out}", "validate=false")

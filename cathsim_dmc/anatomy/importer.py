@@ -60,7 +60,8 @@ from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_ca
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
                                            triangle_quality)
-from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines, validate_asset
+from cathsim_dmc.anatomy.validate import (PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines,
+                                          lumen_profile, site_placement_problems, validate_asset)
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 MIN_SITE_DEPTH_M = 0.001
@@ -554,6 +555,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
 
     centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
+    # Checked before the (slow) remesh, with the radii of the mesh as given.
+    placement = site_placement_problems({k: lumen_profile(p, v, f) for k, p in centerlines.items()},
+                                        label=lambda k: f"sites.{k}={_fmt(sites_in[k])} {units_used}")
+    if placement:
+        raise MeshImportError(f"{path}: {placement[0]}")
     if dir_in is None:
         direction = estimate_entry_direction(grid, entry_m, centerlines)
         notes.append(f"entry direction estimated from the lumen near the entry: {_fmt(direction, digits=3)}")

@@ -39,7 +39,7 @@ from scipy import spatial
 
 from cathsim_dmc.anatomy.asset import AortaAsset, load_asset
 from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
-from cathsim_dmc.anatomy.sdf import signed_distance
+from cathsim_dmc.anatomy.sdf import signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import face_normals, vertex_normals
 
 WIRE_RADIUS_M = 0.000445            # 0.035 in guidewire
@@ -218,6 +218,60 @@ def estimate_ostia(asset: AortaAsset) -> Dict[str, np.ndarray]:
     return ostia_from_centerlines({k: (c.points, c.radius) for k, c in asset.centerlines.items()})
 
 
+BRANCH_WIDENING = 1.4  # a branch opens into its parent where the lumen radius exceeds this x the branch's
+MIN_PATH_ENTRY_DIAMETERS = 2.0  # a site closer to the entry than this many entry lumen diameters is no task
+
+
+def branch_depth(points, radius, parent_window_m: float = 0.060) -> "tuple[Optional[float], float]":
+    """(how far the site, the last point, lies past its branch's opening along the
+    centerline (m; None if the lumen within `parent_window_m` before the site is never
+    BRANCH_WIDENING x wider: no narrower branch), the lumen radius at the site (m)).
+
+    `points` every ~0.5 mm with the lumen `radius` at each (the distance to the wall).
+    The opening is the middle of the flare: the last point, walking back from the site,
+    where the radius is halfway between the site's and the widest within the window.
+    """
+    pts, rad = np.asarray(points, dtype=np.float64), np.asarray(radius, dtype=np.float64)
+    s = arclength(pts)
+    r_site = float(np.median(rad[s >= s[-1] - 0.001]))
+    window = s >= s[-1] - parent_window_m
+    r_parent = float(rad[window].max())
+    if r_parent < BRANCH_WIDENING * r_site:
+        return None, r_site
+    wide = np.nonzero(window & (rad >= 0.5 * (r_site + r_parent)))[0]
+    return float(s[-1] - s[wide[-1]]), r_site
+
+
+def site_placement_problems(centerlines, label=lambda name: f"site {name}") -> List[str]:
+    """Sites that make no navigation task, from entry->site centerlines {name: (points,
+    radius)} sampled every ~0.5 mm (`lumen_profile`): a site that (nearly) coincides with
+    the entry (its centerline shorter than MIN_PATH_ENTRY_DIAMETERS entry lumen diameters),
+    and a site less than its own lumen radius past its branch's opening (`branch_depth`;
+    the task would end at the ostium)."""
+    problems = []
+    for name, (points, radius) in sorted(centerlines.items()):
+        pts, rad = np.asarray(points, dtype=np.float64), np.asarray(radius, dtype=np.float64)
+        length = float(arclength(pts)[-1])
+        shortest = MIN_PATH_ENTRY_DIAMETERS * 2 * float(rad[0])
+        if length < shortest:
+            problems.append(f"{label(name)} is {length * 1e3:.1f} mm along the vessel from the entry (needs >= "
+                            f"{shortest * 1e3:.0f} mm, {MIN_PATH_ENTRY_DIAMETERS:g} entry diameters): it coincides "
+                            f"with the entry; move the entry or the site")
+            continue
+        depth, r_branch = branch_depth(pts, rad)
+        if depth is not None and depth < r_branch:
+            problems.append(f"{label(name)} is {depth * 1e3:.1f} mm into its branch (needs >= {r_branch * 1e3:.1f} "
+                            f"mm, its lumen radius): move it deeper along the branch (the shipped sites: 35-40 mm)")
+    return problems
+
+
+def lumen_profile(points, v, f, spacing_m: float = 0.0005):
+    """(the polyline resampled every `spacing_m`, the lumen radius at each point: its
+    distance to the surface v, f)."""
+    dense = resample_polyline(np.asarray(points, dtype=np.float64), spacing_m)
+    return dense, unsigned_distance(v, f, dense)
+
+
 def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     """Junction points estimated from entry->site centerlines {name: (points, radius)}.
 
@@ -233,7 +287,7 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
         s = arclength(pts)
         tail = s >= s[-1] - 0.010
         r_branch = float(np.median(rad[tail]))
-        wide = np.nonzero(rad > 1.4 * r_branch)[0]
+        wide = np.nonzero(rad > BRANCH_WIDENING * r_branch)[0]
         if len(wide):
             out[k] = pts[wide[-1]]
         for j in names:
@@ -284,6 +338,8 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     for k, d in site_depth.items():
         if d < min_site_depth_m:
             problems.append(f"site {k} is {d * 1e3:.2f} mm inside the lumen (needs >= {min_site_depth_m * 1e3:.1f} mm)")
+    if "sites" in checks:
+        problems += site_placement_problems({k: lumen_profile(c.points, v, f) for k, c in asset.centerlines.items()})
     clearance = {}
     for k in names:
         pts = np.asarray(asset.centerlines[k].points, dtype=np.float64)
