@@ -48,13 +48,16 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
     cameras = CameraCache()
     summaries = []
     max_steps = env.task.max_steps
-    centerline = env.task.aorta.centerline(env.task.target_name)
+    random_anatomy = hasattr(getattr(env, "dm_env", None), "anatomy_name")  # aorta=random: a new anatomy per episode
     progress = tqdm(total=episodes * max_steps, unit="step", desc="evaluating", disable=not show_progress)
     for episode in range(episodes):
         observation, info = env.reset(seed=seed + episode)
         if recorder is not None:
+            centerline = env.task.aorta.centerline(env.task.target_name)  # this episode's anatomy
             recorder.start_episode(info["tip_position_m"],
-                                   remaining_centerline_length_m(centerline, info["tip_position_m"]), observation)
+                                   remaining_centerline_length_m(centerline, info["tip_position_m"]), observation,
+                                   aorta=info["aorta"] if random_anatomy else None,
+                                   target_position_m=env.task.target_position_m)
         total, done = 0.0, False
         while not done:
             action = policy(observation, env)
@@ -69,7 +72,7 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
         summaries.append({
             "episode": episode, "seed": seed + episode, "steps": info["step"], "return": total,
             "success": bool(info["success"]), "diverged": bool(info["diverged"]),
-            "final_distance_m": info["target_distance_m"],
+            "final_distance_m": info["target_distance_m"], **({"aorta": info["aorta"]} if random_anatomy else {}),
         })
         if log_episodes:
             log.info("episode %d: %s", episode, summaries[-1])
@@ -78,7 +81,8 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
 
 
 def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None) -> dict:
-    """metrics.json, metrics.md, path.png and forces.png for one policy on one (task, aorta)."""
+    """metrics.json, metrics.md, path.png (unless `asset` is None) and forces.png for one
+    policy on one (task, aorta)."""
     from cathsim_dmc import metrics, plots
     from cathsim_dmc.trajectory import wall_forces_n
 
@@ -91,8 +95,9 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
     target = label["task"]
     rows = [arrays["episode"] == e for e in range(len(arrays["start_tip_position_m"]))]
     title = f"{label['policy']} on {target}/{label['aorta']}: success {summary['success_pct']['mean']:.0f}%"
-    plots.path_plot(asset, target, arrays["start_tip_position_m"], [arrays["tip_position_m"][r] for r in rows],
-                    [bool(arrays["success"][r].any()) for r in rows], out_dir / "path.png", title)
+    if asset is not None:
+        plots.path_plot(asset, target, arrays["start_tip_position_m"], [arrays["tip_position_m"][r] for r in rows],
+                        [bool(arrays["success"][r].any()) for r in rows], out_dir / "path.png", title)
     forces = wall_forces_n(arrays)  # the step-mean wall force (end of step for older files)
     plots.force_plots([forces[r] for r in rows], out_dir / "forces.png", title=title)
     return report
@@ -156,7 +161,10 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     if frames:
         write_video(out_dir / f"video.{video_format}", frames)
     label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name, **(label or {})}
-    return write_report(recorder.arrays(), task.aorta.asset, label, out_dir, summaries)
+    # One anatomy's picture cannot hold paths from several (aorta=random): no path.png then.
+    arrays = recorder.arrays()
+    asset = None if "episode_aorta" in arrays else task.aorta.asset
+    return write_report(arrays, asset, label, out_dir, summaries)
 
 
 def write_video(path, frames, fps: int = 10) -> Path:

@@ -104,6 +104,8 @@ class CathSimEnv(gymnasium.Env):
     def _info(self):
         info = dataclasses.asdict(self._env.task.step_info(self._env.physics))
         info["step"] = self._env.task.step_count
+        # The episode's anatomy: the aorta's name, or the drawn one with aorta="random".
+        info["aorta"] = getattr(self._env, "anatomy_name", self.aorta_name)
         return info
 
 

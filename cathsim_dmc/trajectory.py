@@ -31,6 +31,9 @@ Optional keys (absent from files that did not record them; readers check):
   feature_z          (N, F)    float32, the feature vector Z of the ENN policy that acted,
                                computed from that row's observation (cathsim-collect)
   start_feature_z    (E, F)    float32, Z of the reset observation
+  episode_aorta      (E,)      str, the anatomy of each episode (aorta=random); the file's
+                               `aorta` is then "random"
+  episode_target_position_m (E, 3) float32, each episode's target (aorta=random)
   mean_contact_force_n (N,)    float32, total wire-vessel contact force averaged over the
                                physics steps of the control step, newtons (what a force
                                sensor's low-pass sees). The force the metrics use
@@ -75,10 +78,18 @@ class TrajectoryRecorder:
     optimal_paths: list = field(default_factory=list)
     start_observations: dict = field(default_factory=dict)
     mean_forces: list = field(default_factory=list)
+    episode_aortas: list = field(default_factory=list)
+    episode_targets: list = field(default_factory=list)
 
-    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None) -> None:
+    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None,
+                      aorta: str | None = None, target_position_m=None) -> None:
+        """Begin an episode; `aorta` and `target_position_m` name its anatomy and target
+        when they change between episodes (aorta=random)."""
         self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
         self.optimal_paths.append(float(optimal_path_length_m))
+        if aorta is not None:
+            self.episode_aortas.append(str(aorta))
+            self.episode_targets.append(np.asarray(target_position_m, dtype=np.float32))
         if self.record_observations and observation is not None:
             # Behavioural cloning pairs an action with the observation it was chosen
             # from; for an episode's first action that is the reset observation.
@@ -108,6 +119,9 @@ class TrajectoryRecorder:
             out["mean_contact_force_n"] = np.asarray(self.mean_forces, dtype=np.float32)
         out.update({f"obs_{key}": np.stack(values) for key, values in self.observations.items()})
         out.update({f"start_obs_{key}": np.stack(values) for key, values in self.start_observations.items()})
+        if self.episode_aortas and len(self.episode_aortas) == len(self.starts):
+            out["episode_aorta"] = np.asarray(self.episode_aortas, dtype=np.str_)
+            out["episode_target_position_m"] = np.stack(self.episode_targets).reshape(-1, 3)
         out.update(
             schema_version=np.int32(SCHEMA_VERSION), task=np.str_(self.task), aorta=np.str_(self.aorta),
             policy=np.str_(self.policy),

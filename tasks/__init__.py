@@ -14,6 +14,7 @@ from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.registry import TARGETS, all_tasks
 from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate, check_options
+from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, anatomy_pool
 
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
@@ -25,8 +26,8 @@ ALL_TASKS = all_tasks()
 
 
 def aorta_choices() -> tuple:
-    """What `aorta=` accepts by name: every shipped aorta and `custom`."""
-    return available_aortas() + (CUSTOM_AORTA,)
+    """What `aorta=` accepts by name: every shipped aorta, `custom` and `random`."""
+    return available_aortas() + (CUSTOM_AORTA, RANDOM_AORTA)
 
 
 def validate(task: str, aorta: str, obs: str = "internal") -> None:
@@ -67,6 +68,8 @@ def build_task(
     """
     validate(task, aorta, obs)
     check_options(**task_kwargs)
+    if aorta == RANDOM_AORTA:
+        raise ValueError(f"aorta='{RANDOM_AORTA}' is a pool of anatomies, not one task: use tasks.load")
     if aorta == CUSTOM_AORTA:
         from cathsim_dmc.anatomy import generated_asset
 
@@ -90,9 +93,27 @@ def build_task(
 
 def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=None,
          environment_kwargs: dict | None = None, **kwargs) -> NavigationEnvironment:
-    """A ready composer environment for (task, aorta); kwargs go to `build_task`."""
+    """A ready composer environment for (task, aorta); kwargs go to `build_task`.
+
+    `aorta="random"` returns a `RandomAnatomyEnvironment`: the anatomy is redrawn every
+    `resample_every` episodes from a pool, set by `aorta_params` (`pool_size`, `pool_seed`,
+    `resample_every`, `prebuild`, `assets`, and `sample_arch_params`'s distribution:
+    `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`).
+    """
+    if aorta == RANDOM_AORTA:
+        params = dict(kwargs.pop("aorta_params", None) or {})
+        validate(task, aorta, obs)
+        check_options(**kwargs)
+        pool = anatomy_pool(**{k: v for k, v in params.items() if k not in ("resample_every", "prebuild")})
+
+        def build(asset, random_state):
+            return NavigationEnvironment(build_task(task, str(asset), obs, **kwargs), random_state=random_state,
+                                         **(environment_kwargs or {}))
+
+        return RandomAnatomyEnvironment(pool, build, resample_every=params.get("resample_every", 1), seed=seed,
+                                        prebuild=bool(params.get("prebuild", False)))
     navigate = build_task(task, aorta, obs, **kwargs)
     return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
 
 
-__all__ = ["ALL_TASKS", "CUSTOM_AORTA", "TARGETS", "aorta_choices", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "check_options", "load", "validate"]
+__all__ = ["ALL_TASKS", "CUSTOM_AORTA", "RANDOM_AORTA", "RandomAnatomyEnvironment", "TARGETS", "aorta_choices", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "check_options", "load", "validate"]
