@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 
 
 def check_number(name: str, value, minimum: float | None = None, whole: bool = False, inclusive: bool = True):
@@ -26,3 +27,15 @@ def check_number(name: str, value, minimum: float | None = None, whole: bool = F
     if not valid:
         raise ValueError(f"{name}={value!r} must be {kind}{bound}")
     return int(number) if whole else number
+
+
+def available_memory_bytes() -> int:
+    """MemAvailable from /proc/meminfo (what can be allocated without swapping)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")

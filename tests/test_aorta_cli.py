@@ -157,6 +157,32 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     print(assert_one_line_error(proc, "import needs entry="))
 
 
+def test_an_oversize_mesh_is_refused_before_any_grid(type1_mm_stl, tmp_path):
+    stl, src = type1_mm_stl
+    # The millimetre mesh read as metres: 217 m across.
+    proc = run("import", f"mesh={stl}", "units=m", f"entry={vec(src.entry_position, 1e3)}",
+               f"sites.bca={vec(src.sites['bca'], 1e3)}", f"out={tmp_path / 'x'}")
+    print(assert_one_line_error(proc, "spans 217 m with units=m", "pass the right units="))
+    assert not (tmp_path / "x").exists()
+
+
+def test_the_grid_memory_is_planned_before_it_is_allocated(type1_mm_stl):
+    import re
+
+    from cathsim_dmc.anatomy.importer import MeshImportError, check_grid_memory
+
+    _, src = type1_mm_stl
+    v, f = src.visual_vertices.astype(np.float64), src.visual_faces.astype(np.int64)
+    # The type I arch at 0.5 mm: 14.4 M nodes, measured peak 1.8 GB.
+    need = check_grid_memory(v, f, 0.0005, 0.013, "t1.stl", available_bytes=64 * 2**30)
+    assert 1.5e9 < need < 2.5e9
+    with pytest.raises(MeshImportError, match=r"needs about 1\.\d GiB, 1\.0 GiB available; pass sdf_mm=") as error:
+        check_grid_memory(v, f, 0.0005, 0.013, "t1.stl", available_bytes=2**30)
+    suggested_mm = float(re.search(r"sdf_mm=([\d.]+) or more", str(error.value)).group(1))
+    assert suggested_mm > 0.5
+    check_grid_memory(v, f, suggested_mm * 1e-3, 0.013, "t1.stl", available_bytes=2**30)
+
+
 def _bca_profile(src):
     from cathsim_dmc.anatomy.validate import _lumen_mesh, lumen_profile
 

@@ -68,6 +68,13 @@ MIN_SITE_DEPTH_M = 0.001
 DEFAULT_EDGE_M = 0.004            # level-set edge of the generator: mean edges come out ~2.3 mm
 MAX_KEPT_TRIANGLES = 40_000
 MAX_GRID_NODES = 30_000_000
+MAX_EXTENT_M = 1.5                 # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
+# Peak memory of the grid stages, per grid node and per node inside the lumen (the
+# centerline graph): the type I arch at sdf_mm=0.5 (14.4 M nodes, 1.3 M in the lumen)
+# peaked at 1.8 GB.
+GRID_BYTES_PER_NODE = 100
+GRID_BYTES_PER_LUMEN_NODE = 300
+MEMORY_FRACTION = 0.7              # of MemAvailable the import may plan to use
 
 
 class MeshImportError(ValueError):
@@ -234,6 +241,32 @@ def detect_units(v, units: str, path) -> "tuple[float, str, Optional[str]]":
 # 4: signed distance grid
 
 
+def grid_shape(v, spacing: float, pad: float) -> "tuple[np.ndarray, np.ndarray]":
+    """(origin, nodes per axis) of the SDF grid around vertices `v`."""
+    lo = np.floor((v.min(axis=0) - pad) / spacing) * spacing
+    return lo, np.ceil((v.max(axis=0) + pad - lo) / spacing).astype(int) + 1
+
+
+def check_grid_memory(v, f, spacing: float, pad: float, path, available_bytes: Optional[int] = None) -> int:
+    """The planned peak memory of the grid stages (bytes), or MeshImportError (one line,
+    naming sdf_mm) if it exceeds MEMORY_FRACTION of the available memory: refused before
+    anything large is allocated."""
+    from cathsim_dmc.checks import available_memory_bytes
+
+    _, n = grid_shape(v, spacing, pad)
+    nodes = float(np.prod(n.astype(float)))
+    tri = v[f]
+    volume = abs(float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0)
+    need = GRID_BYTES_PER_NODE * nodes + GRID_BYTES_PER_LUMEN_NODE * volume / spacing ** 3
+    have = available_memory_bytes() if available_bytes is None else int(available_bytes)
+    if need > MEMORY_FRACTION * have:
+        enough = spacing * (need / (MEMORY_FRACTION * have)) ** (1 / 3)
+        raise MeshImportError(f"{path}: a {n[0]}x{n[1]}x{n[2]} grid at sdf_mm={spacing * 1e3:.2f} needs about "
+                              f"{need / 2**30:.1f} GiB, {have / 2**30:.1f} GiB available; pass sdf_mm="
+                              f"{np.ceil(enough * 1e4) / 10:.1f} or more")
+    return int(need)
+
+
 def mesh_sdf_grid(v, f, spacing: float, pad: float) -> SDFGrid:
     """SDF grid (positive OUTSIDE) of a closed mesh: exact within ~1 node of the surface.
 
@@ -244,8 +277,7 @@ def mesh_sdf_grid(v, f, spacing: float, pad: float) -> SDFGrid:
     import trimesh
 
     h = float(spacing)
-    lo = np.floor((v.min(axis=0) - pad) / h) * h
-    n = np.ceil((v.max(axis=0) + pad - lo) / h).astype(int) + 1
+    lo, n = grid_shape(v, h, pad)
     if int(np.prod(n)) > MAX_GRID_NODES:
         raise MeshImportError(f"the mesh needs a {n[0]}x{n[1]}x{n[2]} grid at {h * 1e3:.2f} mm; "
                               f"pass a larger sdf_mm")
@@ -537,6 +569,10 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     for r in repairs:
         log(f"repair: {path}: {r}")
     v = v * scale
+    extent_m = float(np.max(np.ptp(v, axis=0)))
+    if extent_m > MAX_EXTENT_M:
+        raise MeshImportError(f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
+                              f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh")
     entry_m = entry_in * scale
     sites_m = {k: p * scale for k, p in sites_in.items()}
 
@@ -552,6 +588,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     min_depth = float(depth.min())
     edge = float(edge_length_m) if edge_length_m else min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
     h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(0.25 * min_depth, 0.0004, 0.001))
+    check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
     grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
 
     centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)

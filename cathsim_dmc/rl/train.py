@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import time
 import zipfile
 from dataclasses import dataclass
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from cathsim_dmc import run_files
+from cathsim_dmc.checks import available_memory_bytes
 
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.zip"
@@ -83,18 +83,6 @@ def replay_bytes_per_transition(observation_space, action_dim: int) -> int:
     for space in getattr(observation_space, "spaces", {"": observation_space}).values():
         obs_bytes += int(np.prod(space.shape)) * np.dtype(space.dtype).itemsize
     return 2 * obs_bytes + 4 * action_dim + 4 + 4 + 4
-
-
-def available_memory_bytes() -> int:
-    """MemAvailable from /proc/meminfo (what can be allocated without swapping)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
 
 
 def check_replay_memory(observation_space, action_dim: int, buffer_size: int, fraction: float = 0.8) -> int:
