@@ -162,7 +162,7 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
     return SACfD(
         policy, env, **with_demos, actor_average_tau=float(algo.get("actor_average_tau") or 0.0),
-        actor_learning_rate_scale=float(algo.get("actor_learning_rate_scale") or 1.0),
+        actor_learning_rate_scale=float(algo.get("actor_learning_rate_scale", 1.0)),
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
@@ -439,6 +439,10 @@ def check_training(algo: dict, trainer: dict) -> None:
     check_number("algo.gamma", algo["gamma"], 0.0)
     if not algo["gamma"] <= 1:
         raise ValueError(f"algo.gamma={algo['gamma']!r} must lie in [0, 1]")
+    scale = check_number("algo.actor_learning_rate_scale", algo.get("actor_learning_rate_scale", 1.0), 0.0,
+                         inclusive=False)
+    if not scale <= 1:
+        raise ValueError(f"algo.actor_learning_rate_scale={scale!r} must lie in (0, 1]")
     tau = check_number("algo.actor_average_tau", algo.get("actor_average_tau") or 0.0, 0.0)
     if not tau <= 1:
         raise ValueError(f"algo.actor_average_tau={tau!r} must lie in [0, 1] (0: no average)")
