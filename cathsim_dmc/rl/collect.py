@@ -50,8 +50,8 @@ class FeatureRecorder(TrajectoryRecorder):
     clean_action_fn: Callable | None = None  # the policy's own action, before exploration noise
     clean_actions: list = field(default_factory=list)
 
-    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None) -> None:
-        super().start_episode(tip_position_m, optimal_path_length_m, observation)
+    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None, **episode) -> None:
+        super().start_episode(tip_position_m, optimal_path_length_m, observation, **episode)
         if self.feature_fn is not None and observation is not None:
             self.start_features.append(self.feature_fn(observation))
 
