@@ -97,21 +97,22 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
 
     `aorta="random"` returns a `RandomAnatomyEnvironment`: the anatomy is redrawn every
     `resample_every` episodes from a pool, set by `aorta_params` (`pool_size`, `pool_seed`,
-    `resample_every`, `prebuild`, `assets`, and `sample_arch_params`'s distribution:
+    `resample_every`, `order` ("random" or "cycle"), `prebuild`, `assets`, and `sample_arch_params`'s distribution:
     `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`).
     """
     if aorta == RANDOM_AORTA:
         params = dict(kwargs.pop("aorta_params", None) or {})
         validate(task, aorta, obs)
         check_options(**kwargs)
-        pool = anatomy_pool(**{k: v for k, v in params.items() if k not in ("resample_every", "prebuild")})
+        pool = anatomy_pool(**{k: v for k, v in params.items() if k not in ("resample_every", "prebuild", "order")})
 
         def build(asset, random_state):
             return NavigationEnvironment(build_task(task, str(asset), obs, **kwargs), random_state=random_state,
                                          **(environment_kwargs or {}))
 
         return RandomAnatomyEnvironment(pool, build, resample_every=params.get("resample_every", 1), seed=seed,
-                                        prebuild=bool(params.get("prebuild", False)))
+                                        prebuild=bool(params.get("prebuild", False)),
+                                        order=params.get("order", "random"))
     navigate = build_task(task, aorta, obs, **kwargs)
     return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
 

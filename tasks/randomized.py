@@ -22,7 +22,8 @@ import numpy as np
 RANDOM_AORTA = "random"
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
 DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale")
-POOL_KEYS = ("pool_size", "pool_seed", "resample_every", "assets", "prebuild")
+POOL_KEYS = ("pool_size", "pool_seed", "resample_every", "order", "assets", "prebuild")
+ORDERS = ("random", "cycle")
 
 
 def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] | None = None,
@@ -53,12 +54,20 @@ class RandomAnatomyEnvironment:
     every `resample_every` episodes; otherwise it is the composer environment of the
     current anatomy (attributes such as `task` and `physics` are that one's).
 
+    `order="random"` draws each anatomy from the shared random state; `"cycle"` takes
+    them in turn (the first, the second, ...), so that `len(anatomies)` episodes with
+    `resample_every=1` visit each once (an evaluation over the whole pool).
+
     `build(asset, random_state)` makes the composer environment of one anatomy.
     """
 
-    def __init__(self, anatomies: Sequence, build, resample_every: int = 1, seed=None, prebuild: bool = False):
+    def __init__(self, anatomies: Sequence, build, resample_every: int = 1, seed=None, prebuild: bool = False,
+                 order: str = "random"):
         if not anatomies:
             raise ValueError("the anatomy pool is empty")
+        if order not in ORDERS:
+            raise ValueError(f"aorta order={order!r}; choose one of {list(ORDERS)}")
+        self.order = order
         if int(resample_every) < 1:
             raise ValueError(f"aorta resample_every={resample_every!r} must be at least 1 (episodes)")
         self.anatomies = [Path(a) for a in anatomies]
@@ -98,7 +107,10 @@ class RandomAnatomyEnvironment:
 
     def reset(self):
         if self._episodes % self.resample_every == 0:
-            self._index = int(self._random_state.randint(len(self.anatomies)))
+            if self.order == "cycle":
+                self._index = self._episodes // self.resample_every % len(self.anatomies)
+            else:
+                self._index = int(self._random_state.randint(len(self.anatomies)))
         self._episodes += 1
         return self.current.reset()
 

@@ -61,7 +61,14 @@ def test_the_gymnasium_info_names_the_episodes_anatomy():
     fixed.close()
 
 
+def test_cycle_order_visits_every_anatomy_in_turn():
+    env = tasks.load("bca", "random", seed=0, aorta_params=dict(POOL, order="cycle", resample_every=2))
+    assert _anatomies(env, 6) == ["type1", "type1", "type2", "type2", "type1", "type1"]
+    env.close()
+
+
 @pytest.mark.parametrize("params, needle", [
+    ({"order": "shuffled", **POOL}, "order='shuffled'"),
     ({"pool_size": 0}, "pool_size=0"),
     ({"resample_every": 0, **POOL}, "resample_every=0"),
     ({"arch_width": 2}, "'arch_width'"),
