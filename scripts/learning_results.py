@@ -37,6 +37,8 @@ VARIANTS = {
                            "demos.bc_filter=q"], 20_000),
     "demos_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
                               "demos.bc_filter=none"], 20_000),
+    "demos_bc2_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=2.0",
+                            "demos.bc_filter=none"], 20_000),
     "demos_nobc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0"],
                             20_000),
     "demos_bcslow_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
