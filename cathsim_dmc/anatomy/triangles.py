@@ -95,7 +95,8 @@ def corner_angles_rad(vertices: np.ndarray, faces: np.ndarray, nan_if_degenerate
         e1 = tri[:, (c + 1) % 3] - tri[:, c]
         e2 = tri[:, (c + 2) % 3] - tri[:, c]
         lengths = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
-        cosang = np.sum(e1 * e2, 1) / (lengths if nan_if_degenerate else np.maximum(lengths, 1e-300))
+        with np.errstate(invalid="ignore", divide="ignore"):  # the NaN of a degenerate corner is meant
+            cosang = np.sum(e1 * e2, 1) / (lengths if nan_if_degenerate else np.maximum(lengths, 1e-300))
         out.append(np.arccos(np.clip(cosang, -1.0, 1.0)))
     return np.stack(out, axis=1)
 
@@ -109,7 +110,8 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, use: np.ndarray | No
     f = faces if use is None else faces[use]
     tri = vertices[f]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # the NaN of a face without area is meant (above)
+        fn /= np.linalg.norm(fn, axis=1, keepdims=True)
     ang = corner_angles_rad(vertices, f)
     acc = np.zeros_like(vertices)
     for c in range(3):
