@@ -14,7 +14,7 @@ from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.registry import TARGETS, all_tasks
 from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate, check_options
-from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, anatomy_pool
+from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment
 
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
@@ -101,18 +101,15 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
     `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`).
     """
     if aorta == RANDOM_AORTA:
-        params = dict(kwargs.pop("aorta_params", None) or {})
+        params = kwargs.pop("aorta_params", None)
         validate(task, aorta, obs)
         check_options(**kwargs)
-        pool = anatomy_pool(**{k: v for k, v in params.items() if k not in ("resample_every", "prebuild", "order")})
 
         def build(asset, random_state):
             return NavigationEnvironment(build_task(task, str(asset), obs, **kwargs), random_state=random_state,
                                          **(environment_kwargs or {}))
 
-        return RandomAnatomyEnvironment(pool, build, resample_every=params.get("resample_every", 1), seed=seed,
-                                        prebuild=bool(params.get("prebuild", False)),
-                                        order=params.get("order", "random"))
+        return random_anatomy_environment(params, build, seed=seed)
     navigate = build_task(task, aorta, obs, **kwargs)
     return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
 

@@ -39,14 +39,23 @@ def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] |
         return [resolve_asset(str(a)) for a in assets]
     if int(pool_size) < 1:
         raise ValueError(f"aorta pool_size={pool_size!r} must be at least 1")
-    unknown = sorted(set(distribution) - set(DISTRIBUTION_KEYS))
-    if unknown:
-        raise ValueError(f"aorta_params {unknown} unknown for aorta='{RANDOM_AORTA}'; "
-                         f"choose from {list(POOL_KEYS + DISTRIBUTION_KEYS)}")
     options = {k: (tuple(v) if isinstance(v, list) else v) for k, v in distribution.items() if v is not None}
     return [generated_asset(sample_arch_params(np.random.default_rng([int(pool_seed), i]),
                                                name=f"random{pool_seed}-{i}", **options))
             for i in range(int(pool_size))]
+
+
+def random_anatomy_environment(params: dict | None, build, seed=None) -> "RandomAnatomyEnvironment":
+    """The environment for `aorta_params` (`params`): POOL_KEYS and DISTRIBUTION_KEYS,
+    each checked here, split between the pool (`anatomy_pool`) and the environment."""
+    params = dict(params or {})
+    unknown = sorted(set(params) - set(POOL_KEYS + DISTRIBUTION_KEYS))
+    if unknown:
+        raise ValueError(f"aorta_params {unknown} unknown for aorta='{RANDOM_AORTA}'; "
+                         f"choose from {list(POOL_KEYS + DISTRIBUTION_KEYS)}")
+    env_keys = ("resample_every", "prebuild", "order")
+    pool = anatomy_pool(**{k: v for k, v in params.items() if k not in env_keys})
+    return RandomAnatomyEnvironment(pool, build, seed=seed, **{k: params[k] for k in env_keys if k in params})
 
 
 class RandomAnatomyEnvironment:
@@ -85,10 +94,6 @@ class RandomAnatomyEnvironment:
     @property
     def random_state(self) -> np.random.RandomState:
         return self._random_state
-
-    @property
-    def anatomy_index(self) -> int:
-        return self._index
 
     @property
     def anatomy_name(self) -> str:
