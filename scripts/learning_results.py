@@ -23,10 +23,12 @@ import time
 from pathlib import Path
 
 DEMOS = ["demos=expert"]
+# demos=expert is the training default: the variants without demonstrations must say so.
+NO_DEMOS = ["demos=none"]
 # name -> (Hydra overrides, step budget)
 VARIANTS = {
-    "paper_internal": (["obs=internal", "algo=sac", "reward=euclidean"], 100_000),
-    "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress"], 100_000),
+    "paper_internal": (["obs=internal", "algo=sac", "reward=euclidean", *NO_DEMOS], 100_000),
+    "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *NO_DEMOS], 100_000),
     "demos_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS], 20_000),
     # The robot stops at the target's centerline length + 20 mm (task.insertion_limit_margin_m).
     "demos_limit_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
@@ -52,7 +54,7 @@ VARIANTS = {
                                  "demos.takeover_max_student_steps=150"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
-    "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean"], 100_000),
+    "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean", *NO_DEMOS], 100_000),
 }
 TASKS = ("bca-type1", "lcca-type1", "bca-type2")
 SUCCESS_AIM = 0.9
