@@ -132,16 +132,18 @@ def broken_meshes(tmp_path_factory):
     return d
 
 
-@pytest.mark.parametrize("fname, needles", [
-    ("garbage.stl", ["garbage.stl", "contains no triangles"]),
-    ("open_cube.stl", ["open_cube.stl", "not watertight", "not a flat vessel end"]),
-    ("fin.stl", ["fin.stl", "non-manifold", "shared by more than two triangles"]),
-    ("empty.obj", ["empty.obj", "contains no triangles"]),
-    ("missing.stl", ["missing.stl", "no such file"]),
+@pytest.mark.parametrize("fname, repair, needles", [
+    ("garbage.stl", "auto", ["garbage.stl", "contains no triangles"]),
+    ("open_cube.stl", "surface", ["open_cube.stl", "not watertight", "not a flat vessel end"]),
+    # The volume closes gaps up to close_mm; two missing faces of a 20 mm box are wider.
+    ("open_cube.stl", "auto", ["open_cube.stl", "the surface is open", "entry=[0.0, 0.0, 0.0] mm", "close_mm"]),
+    ("fin.stl", "surface", ["fin.stl", "non-manifold", "shared by more than two triangles"]),
+    ("empty.obj", "auto", ["empty.obj", "contains no triangles"]),
+    ("missing.stl", "auto", ["missing.stl", "no such file"]),
 ])
-def test_broken_mesh_is_refused_with_one_line(broken_meshes, tmp_path, fname, needles):
+def test_broken_mesh_is_refused_with_one_line(broken_meshes, tmp_path, fname, repair, needles):
     proc = run("import", f"mesh={broken_meshes / fname}", "entry=[0,0,0]", "sites.bca=[5,5,5]",
-               f"out={tmp_path / 'x'}")
+               f"out={tmp_path / 'x'}", f"repair={repair}")
     print(assert_one_line_error(proc, *needles))
     assert not (tmp_path / "x").exists()
 

@@ -53,20 +53,27 @@ from scipy import ndimage, sparse, spatial
 from scipy.sparse import csgraph
 
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
-from cathsim_dmc.anatomy.lumen import Lumen, check_lumen_surface, lumen_normals, rim_vertices
+from cathsim_dmc.anatomy.isosurface import zero_surface
+from cathsim_dmc.anatomy.lumen import FoldedSurfaceError, Lumen, check_lumen_surface, lumen_normals, rim_vertices
 from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
 from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges, fix_slivers,
-                                        level_set_surface, manifold_arrays, refine_creases, relax_on_surface)
+                                        level_set_surface, manifold_arrays, refine_creases, relax_on_surface,
+                                        repair_folds)
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
                                            triangle_quality)
 from cathsim_dmc.anatomy.validate import (PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines,
                                           lumen_profile, site_placement_problems, validate_asset)
+from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 MIN_SITE_DEPTH_M = 0.001
 DEFAULT_EDGE_M = 0.004            # level-set edge of the generator: mean edges come out ~2.3 mm
 MAX_KEPT_TRIANGLES = 40_000
+REPAIR_MODES = ("auto", "surface", "volume")
+AUTO_SURFACE_MAX_TRIANGLES = 100_000   # repair=auto rebuilds larger surfaces through the volume
+VOLUME_GRID_NODES = 10_000_000     # the voxel volume's default spacing aims at this many nodes
+FOLD_RETRY_EDGE_FACTOR = 0.85
 MAX_GRID_NODES = 30_000_000
 MAX_EXTENT_M = 1.5                 # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
 # Peak memory of the grid stages, per grid node and per node inside the lumen (the
@@ -335,11 +342,12 @@ def _grid_graph(grid: SDFGrid, clearance: float):
     return graph, grid.origin + grid.spacing * where
 
 
-def _smooth_path(raw, v, f, clearance, spacing=0.0015):
-    """Gaussian-smoothed polyline (ends kept) with the largest sigma that keeps `clearance` from the wall."""
+def _smooth_path(raw, depth, clearance, spacing=0.0015):
+    """Gaussian-smoothed polyline (ends kept) with the largest sigma that keeps `clearance` from the wall
+    (`depth`: points -> distance inside the lumen)."""
     fine = resample_polyline(raw, 0.0005)
     s = arclength(fine)
-    depth_raw = signed_distance(v, f, fine)
+    depth_raw = depth(fine)
     want = min(float(depth_raw.min()), clearance)
     for sigma_m in (0.004, 0.0025, 0.0015, 0.0008, 0.0):
         if sigma_m > 0:
@@ -349,13 +357,17 @@ def _smooth_path(raw, v, f, clearance, spacing=0.0015):
         else:
             cand = fine
         out = resample_polyline(cand, spacing)
-        if sigma_m == 0.0 or signed_distance(v, f, resample_polyline(cand, 0.0005)).min() >= want:
+        if sigma_m == 0.0 or depth(resample_polyline(cand, 0.0005)).min() >= want:
             return out
     return resample_polyline(fine, spacing)
 
 
-def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=PROBE_RADIUS_M):
-    """Entry -> site polylines through the lumen (see the module docstring); MeshImportError if blocked."""
+def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=PROBE_RADIUS_M, depth=None):
+    """Entry -> site polylines through the lumen (see the module docstring); MeshImportError if blocked.
+
+    `depth` (points -> distance inside the lumen) defaults to the signed distance to the mesh v, f."""
+    if depth is None:
+        depth = lambda p: signed_distance(v, f, p)
     graph, coords = _grid_graph(grid, probe)
     if len(coords) == 0:
         raise MeshImportError(f"no part of the lumen is {2 * probe * 1e3:.1f} mm wide (wire probe)")
@@ -380,7 +392,7 @@ def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=
         while chain[-1] != src:
             chain.append(int(pred[chain[-1]]))
         raw = np.concatenate([[entry], coords[chain[::-1]], [site]])
-        out[k] = _smooth_path(raw, v, f, probe + 0.3e-3)
+        out[k] = _smooth_path(raw, depth, probe + 0.3e-3)
     return out
 
 
@@ -502,6 +514,7 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
         vv, ff = refine_creases(vv, ff, grid, 25.0, 1, -np.inf, frozen=band)
         vv = relax_on_surface(vv, ff, grid, frozen=band(vv), iterations=10)
     vv, ff = fix_slivers(vv, ff, grid, frozen=band(vv))
+    vv, ff, _ = repair_folds(vv, ff, grid, frozen=band(vv))
     loc = to_local(vv)
     loc[np.abs(loc[:, 1]) < 1e-12, 1] = 0.0
     loc, ff = close_cap(loc, ff, 0.0)
@@ -513,6 +526,8 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     rim = rim_vertices(ff2, cap2)
     try:
         check_lumen_surface(vv2, ff2, cap2, grid)
+    except FoldedSurfaceError:
+        raise
     except RuntimeError as exc:
         raise MeshImportError(f"{path}: {exc}") from None
     radius = float(np.max(np.linalg.norm((vv2[rim] - p0) - np.outer((vv2[rim] - p0) @ direction, direction),
@@ -540,7 +555,9 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 wall_thickness_m: float = 0.002, edge_length_m: Optional[float] = None, remesh="auto",
                 sdf_spacing_m: Optional[float] = None, open_end_depth_m: float = 0.005, validate: bool = True,
                 validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
-                overwrite: bool = False, log: Callable[[str], None] = print) -> ImportReport:
+                overwrite: bool = False, repair: str = "auto", smooth_m: Optional[float] = None,
+                close_gap_m: float = 0.002, trim_branches_m: float = 0.003,
+                log: Callable[[str], None] = print) -> ImportReport:
     """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
     t0 = time.perf_counter()
     path = pathlib.Path(mesh_path)
@@ -553,6 +570,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     dir_in = None if entry_direction is None else _vec(entry_direction, "entry_direction")
     if dir_in is not None and np.linalg.norm(dir_in) == 0:
         raise ValueError("entry_direction must not be [0, 0, 0]")
+    if repair not in REPAIR_MODES:
+        raise ValueError(f"repair={repair!r} is not valid; choose one of {list(REPAIR_MODES)}")
+    for key, value in (("smooth_m", smooth_m), ("close_gap_m", close_gap_m), ("trim_branches_m", trim_branches_m)):
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{key}={value!r} is not valid; give metres (0 or more)")
     if remesh not in ("auto", True, False):
         raise ValueError(f"remesh={remesh!r} is not valid; choose one of ['auto', true, false]")
     if not 0.0002 <= wall_thickness_m <= 0.01:
@@ -565,35 +587,100 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     notes = [note] if note else []
     for n_ in notes:
         log(f"note: {n_}")
-    v, f, repairs = repair_lumen(v, f, path, units_used)
-    for r in repairs:
-        log(f"repair: {path}: {r}")
-    v = v * scale
-    extent_m = float(np.max(np.ptp(v, axis=0)))
+    extent_m = float(np.max(np.ptp(v, axis=0))) * scale
     if extent_m > MAX_EXTENT_M:
         raise MeshImportError(f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
                               f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh")
     entry_m = entry_in * scale
     sites_m = {k: p * scale for k, p in sites_in.items()}
-
-    depth = signed_distance(v, f, np.concatenate([[entry_m], list(sites_m.values())]))
     labels = ["entry"] + [f"sites.{k}" for k in sites_m]
     given = [entry_in] + list(sites_in.values())
-    for lab, d, p in zip(labels, depth, given):
-        need = PROBE_RADIUS_M if lab == "entry" else MIN_SITE_DEPTH_M
-        if d < need:
-            where = "outside the lumen" if d <= 0 else "inside the lumen but too close to the wall"
-            raise MeshImportError(f"{path}: {lab}={_fmt(p, digits=4 if units_used == 'm' else 1)} {units_used} is "
-                                  f"{where} ({d * 1e3:+.2f} mm from the wall; needs >= {need * 1e3:.2f} mm inside)")
-    min_depth = float(depth.min())
-    edge = float(edge_length_m) if edge_length_m else min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
-    h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(0.25 * min_depth, 0.0004, 0.001))
-    check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
-    grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
 
-    centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
-    # Checked before the (slow) remesh, with the radii of the mesh as given.
-    placement = site_placement_problems({k: lumen_profile(p, v, f) for k, p in centerlines.items()},
+    def check_depths(depth):
+        for lab, d, p in zip(labels, depth, given):
+            need = PROBE_RADIUS_M if lab == "entry" else MIN_SITE_DEPTH_M
+            if d < need:
+                where = "outside the lumen" if d <= 0 else "inside the lumen but too close to the wall"
+                raise MeshImportError(f"{path}: {lab}={_fmt(p, digits=4 if units_used == 'm' else 1)} {units_used} "
+                                      f"is {where} ({d * 1e3:+.2f} mm from the wall; needs >= {need * 1e3:.2f} mm "
+                                      f"inside)")
+
+    use_volume = repair == "volume"
+    repairs: List[str] = []
+    if not use_volume:
+        try:
+            v_closed, f_closed, repairs = repair_lumen(v, f, path, units_used)
+        except MeshImportError as exc:
+            if repair == "surface":
+                raise
+            reason = str(exc).split(": ", 1)[-1]
+            notes.append(f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume "
+                         f"(repair=volume)")
+            log(f"note: {notes[-1]}")
+            use_volume = True
+        else:
+            if repair == "auto" and len(f_closed) > AUTO_SURFACE_MAX_TRIANGLES:
+                # A segmentation export: exact distances to every triangle cost minutes, and its
+                # noise folds the remeshed surface; the volume smooths it.
+                notes.append(f"{len(f_closed)} triangles: rebuilding the lumen from a voxel volume "
+                             f"(repair=surface keeps to the surface as given)")
+                log(f"note: {notes[-1]}")
+                use_volume = True
+                repairs = []          # made to the surface, which the volume does not use
+            else:
+                v, f = v_closed, f_closed
+    points = np.concatenate([[entry_m], list(sites_m.values())])
+    if use_volume:
+        import trimesh
+
+        mesh = trimesh.Trimesh(v * scale, f, process=False)
+        mesh.merge_vertices()
+        mesh.update_faces(mesh.nondegenerate_faces())
+        v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+        edge = float(edge_length_m) if edge_length_m else DEFAULT_EDGE_M
+        box = np.ptp(v, axis=0) + 2 * (3 * edge)
+        h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(np.cbrt(np.prod(box) / VOLUME_GRID_NODES),
+                                                                     0.0004, 0.001))
+        pad = 3 * edge + 2 * h
+        check_grid_memory(v, f, h, pad, path)
+        smooth = h if smooth_m is None else float(smooth_m)
+        try:
+            grid, vnotes = volume_sdf_grid(v, f, h, pad, entry_m, sites_m, max_gap_m=close_gap_m, smooth_m=smooth)
+        except VolumeError as exc:
+            raise MeshImportError(f"{path}: {exc}") from None
+        for n_ in vnotes:
+            repairs.append(n_)
+            log(f"repair: {path}: {n_}")
+        depth = -grid(points)
+        check_depths(depth)
+        if not edge_length_m:
+            edge = min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
+        centerlines = lumen_centerlines(grid, None, None, entry_m, sites_m, depth=lambda q: -grid(q))
+        grid, tnotes = trim_side_branches(grid, list(centerlines.values()), entry_m, trim_branches_m)
+        for n_ in tnotes:
+            repairs.append(n_)
+            log(f"repair: {path}: {n_}")
+        # A surface to measure against (radii, the open end): the zero set at about 1 mm.
+        step = max(1, int(round(0.001 / h)))
+        v, f = zero_surface(grid.values[::step, ::step, ::step], grid.origin, h * step)
+    else:
+        for r in repairs:
+            log(f"repair: {path}: {r}")
+        v = v * scale
+        depth = signed_distance(v, f, points)
+        check_depths(depth)
+        edge = float(edge_length_m) if edge_length_m else min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
+        h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(0.25 * float(depth.min()), 0.0004, 0.001))
+        check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
+        grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
+        centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
+    # Checked before the (slow) remesh, with the radii of the lumen as given (from the grid: exact near
+    # the wall, within half a node further in; the closest-point query on a 300k-triangle mesh took 30 s).
+    profiles = {}
+    for k, p in centerlines.items():
+        dense = resample_polyline(p, 0.0005)
+        profiles[k] = (dense, np.maximum(-grid(dense), 0.0))
+    placement = site_placement_problems(profiles,
                                         label=lambda k: f"sites.{k}={_fmt(sites_in[k])} {units_used}")
     if placement:
         raise MeshImportError(f"{path}: {placement[0]}")
@@ -605,7 +692,9 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         direction = dir_in / np.linalg.norm(dir_in)
 
     mean_edge, min_angle = _triangle_stats(v, f)
-    if remesh == "auto":
+    if use_volume:
+        do_remesh = True
+    elif remesh == "auto":
         reasons = []
         if not 0.2 * edge <= mean_edge <= 0.8 * edge:
             reasons.append(f"mean edge {mean_edge * 1e3:.2f} mm outside {0.2 * edge * 1e3:.1f}-{0.8 * edge * 1e3:.1f}")
@@ -620,8 +709,33 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         log(f"note: {msg}")
     else:
         do_remesh = bool(remesh)
-    lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
-                                       depth=open_end_depth_m, path=path)
+    # A fold the local repair leaves is retried once with shorter edges (as the generator does).
+    for attempt in range(2):
+        try:
+            lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
+                                               depth=open_end_depth_m, path=path)
+            break
+        except FoldedSurfaceError as exc:
+            where = _fmt(exc.where, 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4)
+            if attempt == 0 and do_remesh:
+                edge *= FOLD_RETRY_EDGE_FACTOR
+                notes.append(f"a fold at {where} {units_used} survived local repair; remeshing at "
+                             f"{edge * 1e3:.2f} mm edges")
+                log(f"note: {notes[-1]}")
+                continue
+            if repair == "auto" and not use_volume:
+                log(f"note: the remeshed surface folds over at {where} {units_used}; rebuilding the lumen from a "
+                    f"voxel volume (repair=volume)")
+                return import_mesh(mesh_path, out, sites=sites, entry=entry, entry_direction=entry_direction,
+                                   units=units, name=name, wall_thickness_m=wall_thickness_m,
+                                   edge_length_m=edge_length_m, remesh=remesh, sdf_spacing_m=sdf_spacing_m,
+                                   open_end_depth_m=open_end_depth_m, validate=validate, validator=validator,
+                                   overwrite=overwrite, repair="volume", smooth_m=smooth_m,
+                                   close_gap_m=close_gap_m, trim_branches_m=trim_branches_m, log=log)
+            hint = (f"edge_mm={0.8 * edge * 1e3:.1f}" if do_remesh else "remesh=true") + \
+                   ("" if use_volume else " or repair=volume")
+            raise MeshImportError(f"{path}: the lumen surface folds over at {where} {units_used} and local repair "
+                                  f"cannot undo it; pass {hint}") from None
     prisms = extrude_prisms(lumen, wall_thickness_m)
     wall = lumen.faces[~lumen.cap]
     cl = {k: (p, unsigned_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
@@ -632,7 +746,8 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
               "entry": json_rounded(entry_in), "entry_direction": None if dir_in is None else json_rounded(dir_in),
               "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
               "wall_thickness_m": wall_thickness_m, "edge_length_m": edge, "sdf_spacing_m": h,
-              "remesh": do_remesh, "open_end_depth_m": open_end_depth_m}
+              "remesh": do_remesh, "open_end_depth_m": open_end_depth_m,
+              "repair": "volume" if use_volume else "surface"}
     description = (f"Imported lumen surface {path.name} ({units_used}); "
                    f"{'remeshed' if do_remesh else 'triangles kept'}; wall: one "
                    f"{wall_thickness_m * 1e3:g} mm prism per lumen triangle; repairs: "

@@ -23,7 +23,7 @@ import numpy as np
 
 from cathsim_dmc.anatomy.arch import ArchModel
 from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges,
-                                        faces_follow_surface, fix_slivers, level_set_surface, manifold_arrays,
+                                        fix_slivers, folded_faces, level_set_surface, manifold_arrays,
                                         refine_creases, relax_on_surface)
 from cathsim_dmc.anatomy.sdf import SDFGrid, arch_sdf_grid
 from cathsim_dmc.anatomy.triangles import canonical_order, drop_unused_vertices, edge_faces, vertex_normals
@@ -57,7 +57,11 @@ def lumen_normals(vertices: np.ndarray, faces: np.ndarray, cap: np.ndarray, cut_
 
 
 class FoldedSurfaceError(RuntimeError):
-    """A wall triangle of the lumen faces against the surface normal."""
+    """A wall triangle of the lumen faces against the surface normal (`where`: its centroid, m)."""
+
+    def __init__(self, message: str, where=None):
+        super().__init__(message)
+        self.where = where
 
 
 def check_lumen_surface(v, f, cap, grid: SDFGrid):
@@ -65,8 +69,13 @@ def check_lumen_surface(v, f, cap, grid: SDFGrid):
     _, _, faces_of_edge = edge_faces(f)
     if np.any(faces_of_edge[:, 1] < 0):
         raise RuntimeError("Lumen surface is not closed.")
-    if not faces_follow_surface(v, f[~cap], grid, min_cos=0.0):
-        raise FoldedSurfaceError("Lumen surface has a folded triangle; try another edge_length_m.")
+    wall = f[~cap]
+    bad = folded_faces(v, wall, grid)
+    if len(bad):
+        where = v[wall[bad[0]]].mean(axis=0)
+        raise FoldedSurfaceError(f"Lumen surface has {len(bad)} folded triangle{'s' * (len(bad) > 1)}, the first at "
+                                 f"[{', '.join(f'{x * 1e3:.1f}' for x in where)}] mm; try another edge_length_m.",
+                                 where=where)
 
 
 # A coarse mesh can fold a triangle where the lumen curves tightly (seen at 6-8 mm

@@ -243,6 +243,57 @@ def fix_slivers(v, f, grid: SDFGrid, frozen: np.ndarray | None = None, min_angle
     return v, f
 
 
+def folded_faces(v, f, grid: SDFGrid, min_cos: float = 0.0) -> np.ndarray:
+    """Indices of the faces turned against (or across) the surface normal at their centroid."""
+    n = grid.surface_normal(v[f].mean(axis=1))
+    return np.nonzero(np.sum(face_normals(v, f) * n, axis=1) <= min_cos)[0]
+
+
+def repair_folds(v, f, grid: SDFGrid, frozen: np.ndarray | None = None, max_rounds: int = 200):
+    """Local repair of folded triangles: collapse an edge of each, else even out its neighbourhood.
+
+    A fold (a triangle facing against the SDF gradient) is where the mesh could not
+    follow a tight curve: a jagged branch tip, an ostium's ridge, a side stump.
+    Each folded triangle's edges are tried shortest first (a collapse is kept if
+    every touched triangle then faces along the surface); if none can go, the
+    vertices around it are moved to the mean of their neighbours and projected
+    back onto the surface. Returns (v, f, folds left). Vertices in `frozen` never move.
+    """
+    frozen = np.zeros(len(v), dtype=bool) if frozen is None else np.asarray(frozen, dtype=bool).copy()
+    accept = lambda vv, touched, before: len(touched) == 0 or faces_follow_surface(vv, touched, grid, min_cos=0.1)
+    smoothed = set()
+    for _ in range(max_rounds):
+        bad = folded_faces(v, f, grid, 0.05)
+        bad = bad[~np.any(frozen[f[bad]], axis=1)]
+        if not len(bad):
+            break
+        t = int(bad[0])
+        tri = f[t]
+        lengths = [np.linalg.norm(v[tri[k]] - v[tri[(k + 1) % 3]]) for k in range(3)]
+        done = False
+        for k in np.argsort(lengths):
+            res = _try_collapse(v, f, int(tri[k]), int(tri[(k + 1) % 3]), grid, frozen, None, accept=accept)
+            if res is not None:
+                v, f, frozen = res
+                done = True
+                break
+        if done:
+            continue
+        key = tuple(sorted(int(x) for x in tri))
+        if key in smoothed:
+            break            # smoothing did not help either: report what is left
+        smoothed.add(key)
+        ring = np.unique(f[np.any(np.isin(f, tri), axis=1)])
+        ring = ring[~frozen[ring]]
+        for _ in range(3):
+            for i in ring:
+                nb = np.unique(f[np.any(f == i, axis=1)])
+                nb = nb[nb != i]
+                v[i] = grid.project_onto_surface(v[nb].mean(axis=0)[None])[0]
+    bad = folded_faces(v, f, grid, 0.0)
+    return v, f, int(np.sum(~np.any(frozen[f[bad]], axis=1)))
+
+
 def _angles_deg(v, f):
     """(F, 3) corner angles in degrees; a zero-length edge's corners count as 90 deg, its third as ~0."""
     return np.degrees(corner_angles_rad(v, f, nan_if_degenerate=False))

@@ -62,10 +62,13 @@ class SDFGrid:
     def project_onto_surface(self, points: np.ndarray, iterations: int = 5) -> np.ndarray:
         """Newton steps from (N, 3) points onto the zero set."""
         x = np.array(points, dtype=np.float64)
+        max_step = 4.0 * self.spacing       # a flat patch of the field (tiny gradient) must not throw a point away
         for _ in range(iterations):
             d = self(x)
             g = self.gradient(x)
-            x -= (d / np.maximum(np.sum(g * g, axis=1), 1e-12))[:, None] * g
+            step = (d / np.maximum(np.sum(g * g, axis=1), 1e-12))[:, None] * g
+            norm = np.linalg.norm(step, axis=1, keepdims=True)
+            x -= np.where(norm > max_step, step * (max_step / np.maximum(norm, 1e-300)), step)
         return x
 
 

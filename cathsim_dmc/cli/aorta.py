@@ -22,6 +22,12 @@ import: `mesh=FILE` (STL/OBJ lumen surface), `entry=[x,y,z]` and one or more
   (else estimated from the lumen), `units=auto|mm|m`, `name=`, `out=DIR`
   (default ./NAME), `wall_mm=2`, `edge_mm=auto`, `sdf_mm=auto`,
   `remesh=auto|true|false`, `open_end_mm=5`, `validate=true`, `overwrite=false`.
+  `repair=auto|surface|volume`: `surface` makes only safe repairs to the surface
+  as given and refuses what they cannot fix; `volume` rebuilds the lumen from a
+  voxel volume (tolerates edges shared by 3+ triangles, self-intersections,
+  decimation, gaps up to `close_mm=2`, a wall shell; smooths over `smooth_mm=auto`
+  (one voxel); cuts side branches narrower than `trim_mm=3` that lead to no site,
+  0 keeps them); `auto` (default) tries `surface`, then `volume`.
 
 Exit status 0 on success, 2 with one `error:` line on bad input (including a
 mesh that cannot be imported), 1 when `validate` finds problems.
@@ -38,7 +44,7 @@ from cathsim_dmc.cli._common import USAGE_ERROR, fail
 COMMANDS = ("build", "import", "validate", "list")
 BUILD_KEYS = ("preset", "arch_type", "seed", "name", "out", "validate", "overwrite")
 IMPORT_KEYS = ("mesh", "entry", "entry_direction", "units", "name", "out", "wall_mm", "edge_mm", "sdf_mm",
-               "remesh", "open_end_mm", "validate", "overwrite")
+               "remesh", "open_end_mm", "validate", "overwrite", "repair", "smooth_mm", "close_mm", "trim_mm")
 
 
 def _parse_value(text: str):
@@ -183,6 +189,19 @@ def cmd_import(args: List[str]) -> int:
             fail(f"{key}={value!r} is not valid; give a positive number of millimetres{' or auto' if default == 'auto' else ''}")
         return float(value) * 1e-3
 
+    def mm_or_zero(key, default):
+        value = opts.pop(key, default)
+        if value in (None, "auto"):
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+            fail(f"{key}={value!r} is not valid; give millimetres (0 or more){' or auto' if default == 'auto' else ''}")
+        return float(value) * 1e-3
+
+    from cathsim_dmc.anatomy.importer import REPAIR_MODES
+
+    repair = str(opts.pop("repair", "auto"))
+    if repair not in REPAIR_MODES:
+        fail(f"repair={repair!r} is not valid; choose one of {list(REPAIR_MODES)}")
     remesh = opts.pop("remesh", "auto")
     if remesh != "auto":
         remesh = _flag({"remesh": remesh}, "remesh", False)
@@ -191,7 +210,9 @@ def cmd_import(args: List[str]) -> int:
         units=str(opts.pop("units", "auto")), name=name, wall_thickness_m=mm("wall_mm", 2.0),
         edge_length_m=mm("edge_mm", "auto"), sdf_spacing_m=mm("sdf_mm", "auto"), remesh=remesh,
         open_end_depth_m=mm("open_end_mm", 5.0), validate=_flag(opts, "validate", True),
-        validator=validate_and_compile, overwrite=_flag(opts, "overwrite", False))
+        validator=validate_and_compile, overwrite=_flag(opts, "overwrite", False), repair=repair,
+        smooth_m=mm_or_zero("smooth_mm", "auto"), close_gap_m=mm_or_zero("close_mm", 2.0),
+        trim_branches_m=mm_or_zero("trim_mm", 3.0))
     lengths = ", ".join(f"{k} {v * 100:.1f} cm" for k, v in sorted(report.path_length_m.items()))
     print(f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
           f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}")
