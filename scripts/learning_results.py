@@ -65,7 +65,8 @@ def run_dir(root: Path, variant: str, task: str, seed: int) -> Path:
     return root / variant / task / f"seed{seed}"
 
 
-def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None) -> None:
+def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
+          save_replay_buffer: bool = False) -> None:
     folder = run_dir(root, variant, task, seed)
     if (folder / "eval" / "metrics.json").is_file():
         print(f"done already: {folder}")
@@ -76,6 +77,9 @@ def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps
     common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
               f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
               "trainer.progress_bar=false", "trainer.video=false"]
+    if save_replay_buffer:
+        # With each checkpoint, so a run cut short (a session's end) resumes where it was.
+        common.append("trainer.save_replay_buffer=true")
     if (folder / "checkpoints" / "last.zip").is_file():
         args = [f"resume={folder}", f"trainer.total_timesteps={budget}", f"hydra.run.dir={folder}"]
     else:
@@ -187,6 +191,8 @@ def main(argv=None) -> int:
     run.add_argument("--eval-every", type=int, default=2000)
     run.add_argument("--steps", type=int, default=None, help="override every variant's step budget")
     run.add_argument("--root", type=Path, default=Path("outputs/learning"))
+    run.add_argument("--save-replay-buffer", action="store_true",
+                     help="checkpoint the replay buffer too, so an interrupted run resumes faithfully")
     rep = sub.add_parser("report")
     rep.add_argument("--root", type=Path, default=Path("outputs/learning"))
     rep.add_argument("--out", type=Path, default=None)
@@ -196,7 +202,7 @@ def main(argv=None) -> int:
         for variant in args.variants:
             for task in args.tasks:
                 for seed in args.seeds:
-                    train(args.root, variant, task, seed, args.eval_every, args.steps)
+                    train(args.root, variant, task, seed, args.eval_every, args.steps, args.save_replay_buffer)
     else:
         report(args.root, args.out, args.plot)
     return 0
