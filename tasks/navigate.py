@@ -72,6 +72,8 @@ class StepInfo:
     # Total, averaged over the control step's physics steps: the step's wall force, which
     # the metrics, the `contact_force` observation and the training logs use.
     mean_contact_force_n: float
+    # The largest of those physics-step totals: the step's peak (an impact lasts one physics step).
+    peak_contact_force_n: float
     success: bool
     diverged: bool
     path_distance_m: float  # tip to target along the vessel (geodesic), metres
@@ -197,7 +199,8 @@ class Navigate(composer.Task):
         self._wall_force = None  # cs_physics.WallForceTotal for this physics (set per episode)
         self._tip_location = None  # the tip on the centerline tree, cached per control step
         self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
-        self._mean_force_n = 0.0
+        self._force_peak_n = 0.0
+        self._mean_force_n = self._peak_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
         self._aim_potential = self._previous_aim_potential = 0.0
         self._start_progress_m = 0.0  # tip progress at the start minus the carriage's (set per episode)
@@ -322,6 +325,7 @@ class Navigate(composer.Task):
         # No physics step yet: the reset's force is the start state's total (just forwarded).
         self._mean_force_n = cs_physics.wire_contacts(
             physics, self._wire_mask, recompute=False, is_vessel_geom=self._vessel_mask).total_n
+        self._peak_force_n = self._mean_force_n
         self._contacts = None
         self._tip_location = None
         self._start_progress_m = self._locate_tip(physics)[1] - insertion
@@ -334,15 +338,18 @@ class Navigate(composer.Task):
             physics.after_constraint_solve = self._add_physics_step_force
 
     def _add_physics_step_force(self, physics):
-        self._force_sum_n += self._wall_force.total_n(physics.data.ptr)
+        total = self._wall_force.total_n(physics.data.ptr)
+        self._force_sum_n += total
         self._force_samples += 1
+        if total > self._force_peak_n:
+            self._force_peak_n = total
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action)
         self._contacts = None
         self._stepped_state = None
         self._tip_location = None
-        self._force_sum_n, self._force_samples = 0.0, 0
+        self._force_sum_n, self._force_samples, self._force_peak_n = 0.0, 0, 0.0
 
     def after_step(self, physics, random_state):
         # dm_control's legacy step (composer's default) ends with mj_step1: the position
@@ -353,8 +360,10 @@ class Navigate(composer.Task):
         self._step_count += 1
         self._diverged = cs_physics.is_diverged(physics)
         self._escaped = not self._diverged and not self._containment.contains(self.wire_points_m(physics)).all()
-        self._mean_force_n = (self._force_sum_n / self._force_samples if self._force_samples
-                              else self.contact_forces(physics).total_n)
+        if self._force_samples:
+            self._mean_force_n, self._peak_force_n = self._force_sum_n / self._force_samples, self._force_peak_n
+        else:
+            self._mean_force_n = self._peak_force_n = self.contact_forces(physics).total_n
         if not (self._diverged or self._escaped):
             self._success = self.target_distance_m(physics) <= self._delta_m
             self._previous_reward_distance_m = self._reward_distance_m
@@ -524,6 +533,7 @@ class Navigate(composer.Task):
             contact_force_n=contacts.total_n,
             max_contact_force_n=contacts.max_n,
             mean_contact_force_n=self._mean_force_n,
+            peak_contact_force_n=self._peak_force_n,
             success=self._success,
             diverged=self._diverged,
             path_distance_m=self.path_distance_m(physics),

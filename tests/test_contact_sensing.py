@@ -40,7 +40,7 @@ def test_sensing_leaves_the_dynamics_unchanged(env):
     assert all(i["mean_contact_force_n"] == i["contact_force_n"] for i in plain)
 
 
-def test_mean_is_the_average_over_every_physics_step(env):
+def test_mean_and_peak_are_over_every_physics_step(env):
     _drive_into_the_arch(env)
     physics, task = env.physics, env.task
     wire = np.zeros(physics.model.ngeom, dtype=bool)
@@ -61,6 +61,7 @@ def test_mean_is_the_average_over_every_physics_step(env):
         _, _, _, _, info = env.step(np.array([0.5, 0.0], np.float32))
         assert len(samples) == round(task.control_timestep / physics.model.opt.timestep)
         assert info["mean_contact_force_n"] == pytest.approx(np.mean(samples), rel=1e-9, abs=1e-12)
+        assert info["peak_contact_force_n"] == pytest.approx(np.max(samples), rel=1e-9, abs=1e-12)
         means.append(info["mean_contact_force_n"])
         ends.append(info["contact_force_n"])
     assert max(means) > 0.01  # the wire is pushed along the arch wall: contact throughout
