@@ -33,13 +33,58 @@ class RandomPolicy:
         return self._rng.uniform(-1.0, 1.0, size=2).astype(np.float32)
 
 
+class AdversarialPolicy:
+    """Stress actions for containment and force checks, seeded: bursts of 5-40 control
+    steps, each of one mode drawn at random from `MODES`:
+
+    * ``random``: uniform in [-1, 1]^2;
+    * ``bang_bang``: each axis -1 or +1, held for 1-5 steps;
+    * ``insert_rotate``: full insertion with full rotation one way (drives the wire to the
+      end of its stroke and buckles it);
+    * ``reversals``: insertion flips sign every step, rotation full one way.
+
+    `mode` names the current burst's mode (for reports).
+    """
+
+    MODES = ("random", "bang_bang", "insert_rotate", "reversals")
+
+    def __init__(self, seed: int = 0):
+        self._rng = np.random.default_rng(seed)
+        self._burst: list = []
+        self.mode = None
+
+    def _next_burst(self) -> None:
+        rng = self._rng
+        self.mode = self.MODES[rng.integers(len(self.MODES))]
+        length = int(rng.integers(5, 41))
+        if self.mode == "random":
+            burst = list(rng.uniform(-1, 1, (length, 2)))
+        elif self.mode == "bang_bang":
+            burst = []
+            while len(burst) < length:
+                burst.extend([rng.choice([-1.0, 1.0], size=2)] * int(rng.integers(1, 6)))
+            burst = burst[:length]
+        elif self.mode == "insert_rotate":
+            burst = [np.array([1.0, rng.choice([-1.0, 1.0])])] * length
+        else:
+            turn = rng.choice([-1.0, 1.0])
+            burst = [np.array([1.0 if k % 2 == 0 else -1.0, turn]) for k in range(length)]
+        self._burst = burst[::-1]  # popped from the end
+
+    def __call__(self, observation=None, env=None) -> np.ndarray:
+        if not self._burst:
+            self._next_burst()
+        return np.asarray(self._burst.pop(), dtype=np.float32)
+
+
 def _expert(seed: int = 0):
     from cathsim_dmc.experts import CenterlineExpert
 
     return CenterlineExpert()
 
 
-BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomPolicy, "expert": _expert}
+BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomPolicy, "adversarial": AdversarialPolicy,
+                    "expert": _expert}
 
 
 class CheckpointPolicy:

@@ -23,9 +23,10 @@ so that a spike can be replayed. `--guidewire key=value` (and `--robot`, `--task
 entity parameters (values parsed as JSON: `--guidewire mass_scale=625`) to compare
 physics settings on the same seeds; `--json` writes everything for later comparison.
 
-Adversarial actions come in bursts of 5-40 control steps, each one of: uniform random;
-bang-bang (each axis -1 or +1, held 1-5 steps); insert-and-rotate at full stroke
-([1, +-1]); rapid reversals (insertion flips sign every step, rotation full).
+Adversarial actions are `policy=adversarial` (`cathsim_dmc.policies.AdversarialPolicy`):
+bursts of 5-40 control steps, each one of: uniform random; bang-bang (each axis -1 or +1,
+held 1-5 steps); insert-and-rotate at full stroke ([1, +-1]); rapid reversals (insertion
+flips sign every step, rotation full).
 """
 
 from __future__ import annotations
@@ -40,10 +41,9 @@ import numpy as np
 
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.policies import make_policy
+from cathsim_dmc.policies import AdversarialPolicy, make_policy
 
 PERCENTILES = (50, 99, 99.9, 100)
-ADVERSARIAL_MODES = ("random", "bang_bang", "insert_rotate", "reversals")
 
 
 @dataclass
@@ -146,29 +146,6 @@ def run_expert(aorta: str, target: str, episodes: int, env_kwargs: dict, keep: i
     return samples
 
 
-def adversarial_actions(rng: np.random.Generator, steps: int):
-    """`steps` actions in bursts of one of `ADVERSARIAL_MODES` each."""
-    produced = 0
-    while produced < steps:
-        mode = ADVERSARIAL_MODES[rng.integers(len(ADVERSARIAL_MODES))]
-        length = int(min(rng.integers(5, 41), steps - produced))
-        if mode == "random":
-            burst = rng.uniform(-1, 1, (length, 2))
-        elif mode == "bang_bang":
-            burst, held = [], None
-            while len(burst) < length:
-                held = rng.choice([-1.0, 1.0], size=2)
-                burst.extend([held] * int(rng.integers(1, 6)))
-            burst = np.array(burst[:length])
-        elif mode == "insert_rotate":
-            burst = np.tile([1.0, rng.choice([-1.0, 1.0])], (length, 1))
-        else:
-            sign = np.where(np.arange(length) % 2 == 0, 1.0, -1.0)
-            burst = np.stack([sign, np.full(length, rng.choice([-1.0, 1.0]))], axis=1)
-        produced += length
-        yield from ((mode, action) for action in burst)
-
-
 def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: int = 0) -> Samples:
     # Long episodes, so that bursts reach the end of the stroke and buckle the wire.
     kwargs = dict(env_kwargs)
@@ -179,10 +156,10 @@ def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: i
     env.reset(seed=seed)
     probe.attach()
     samples.episodes = 1
-    rng = np.random.default_rng(seed)
-    for k, (mode, action) in enumerate(adversarial_actions(rng, steps), 1):
-        _, _, terminated, truncated, info = env.step(action.astype(np.float32))
-        _record_step(samples, probe, info, dict(seed=seed, adversarial_step=k, mode=mode, step=info["step"]), keep)
+    policy = AdversarialPolicy(seed)
+    for k in range(1, steps + 1):
+        _, _, terminated, truncated, info = env.step(policy())
+        _record_step(samples, probe, info, dict(seed=seed, adversarial_step=k, mode=policy.mode, step=info["step"]), keep)
         if terminated or truncated:
             env.reset()
             probe.attach()
