@@ -41,7 +41,12 @@ ONE_OPTION = {  # accurate with one of fast's settings
     "noslip0": dict(noslip_iterations=0),
     "sleep": dict(enableflags=int(mujoco.mjtEnableBit.mjENBL_SLEEP)),
 }
-VARIANTS = ("accurate", "fast", *ONE_OPTION, "wall_frame")
+FAST_BUT = {  # fast with one setting changed
+    "fast_newton": dict(solver=mujoco.mjtSolver.mjSOL_NEWTON, iterations=100),
+    "fast_pgs20": dict(iterations=20),
+    "fast_pgs30": dict(iterations=30),
+}
+VARIANTS = ("accurate", "fast", *ONE_OPTION, *FAST_BUT, "wall_frame")
 
 
 def build_variants(names, task: str, aorta: str) -> tuple:
@@ -54,6 +59,12 @@ def build_variants(names, task: str, aorta: str) -> tuple:
         elif name == "fast":
             env = tasks.load(task, aorta, physics="fast")
             models[name] = copy.copy(env.physics.model.ptr)
+        elif name in FAST_BUT:
+            env = tasks.load(task, aorta, physics="fast")
+            model = copy.copy(env.physics.model.ptr)
+            for key, value in FAST_BUT[name].items():
+                setattr(model.opt, key, value)
+            models[name] = model
         elif name == "wall_frame":
             env = tasks.load(task, aorta, physics="accurate", aorta_options=dict(hulls_in_mjcf=True))
             models[name] = copy.copy(env.physics.model.ptr)
