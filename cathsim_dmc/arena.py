@@ -2,7 +2,9 @@
 
 ``top`` looks along -z (patient posterior), the antero-posterior fluoroscopy view;
 ``side`` looks along -x (patient left to right), the lateral view. Both are orthographic,
-as an X-ray projection nearly is, and are framed on an anatomy with `frame_cameras`.
+as an X-ray projection nearly is, and are framed on an anatomy with `frame_cameras`,
+which can also turn ``top`` into a left anterior oblique (LAO) view: the camera swung
+about the patient's vertical axis towards the patient's left (`lao_camera_axes`).
 """
 
 from __future__ import annotations
@@ -78,19 +80,49 @@ class OperatingArena(composer.Arena):
     def side_camera(self):
         return self._side
 
-    def frame_cameras(self, bounds_m, margin: float = 1.1):
-        """Centres both cameras on an axis-aligned box [[min xyz], [max xyz]] in metres."""
+    def frame_cameras(self, bounds_m, margin: float = 1.1, lao_deg: float = 0.0):
+        """Centres both cameras on an axis-aligned box [[min xyz], [max xyz]] in metres.
+
+        `lao_deg` turns the top camera about world +y (the patient's long axis) by that
+        angle towards the patient's left, looking at the patient from the front left: a
+        left anterior oblique view (negative: right anterior oblique); 0 is the AP view.
+        The turned camera is framed on the box's corners seen along its own axes.
+        """
         lo, hi = np.asarray(bounds_m, dtype=float)
         centre = (lo + hi) / 2
         extent = hi - lo
         # For an orthographic camera, fovy is the visible height in metres; images are square.
-        self._top.pos = [centre[0], centre[1], hi[2] + 0.5]
-        self._top.fovy = float(max(extent[0], extent[1]) * margin)
+        if lao_deg == 0:
+            self._top.pos = [centre[0], centre[1], hi[2] + 0.5]
+            self._top.quat = [1, 0, 0, 0]
+            self._top.fovy = float(max(extent[0], extent[1]) * margin)
+        else:
+            right, up, towards = lao_camera_axes(lao_deg)
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            across = (corners - centre) @ right
+            self._top.pos = centre + (float(np.max((corners - centre) @ towards)) + 0.5) * towards
+            self._top.quat = lao_camera_quat(lao_deg)
+            self._top.fovy = float(max(np.ptp(across), extent[1]) * margin)
         self._side.pos = [hi[0] + 0.5, centre[1], centre[2]]
         self._side.fovy = float(max(extent[2], extent[1]) * margin)
         self._mjcf_root.visual.map.zfar = 5.0
         self._mjcf_root.statistic.center = centre
         self._mjcf_root.statistic.extent = float(np.max(extent))
+
+
+def lao_camera_axes(lao_deg: float):
+    """World directions of the LAO top camera's image right, image up and view axis
+    (towards the camera): world +x, +y, +z turned by `lao_deg` about +y, so that the
+    camera sits at (sin, 0, cos) of the angle, anterior and to the patient's left."""
+    a = np.radians(float(lao_deg))
+    return (np.array([np.cos(a), 0.0, -np.sin(a)]), np.array([0.0, 1.0, 0.0]),
+            np.array([np.sin(a), 0.0, np.cos(a)]))
+
+
+def lao_camera_quat(lao_deg: float) -> np.ndarray:
+    """MuJoCo quaternion (w, x, y, z) of the turn by `lao_deg` about +y."""
+    half = np.radians(float(lao_deg)) / 2
+    return np.array([np.cos(half), 0.0, np.sin(half), 0.0])
 
 
 def top_camera_matrix(physics, camera_name: str = "top", size: int = 80) -> np.ndarray:

@@ -34,6 +34,9 @@ class ObservationSettings:
     style: str = "camera"  # or "fluoro"
     renderer: str = "raster"  # or "gl"
     noise_std: float = 0.0  # Gaussian pixel noise (grey levels), seeded by the environment
+    # The top camera turned this many degrees towards the patient's left about the
+    # vertical axis (left anterior oblique; negative: right anterior oblique); 0 = AP.
+    lao_deg: float = 0.0
 
 
 # What a preset can enable (the task has a few more, enabled one by one as extra observations).
@@ -45,7 +48,7 @@ def load_presets(folder) -> dict:
 
     A preset file is the one definition of its preset, for the command-line tools (Hydra's
     `obs=` group) and the Python API (`tasks.load(obs=...)`) alike: `name`, the
-    `observables` it enables, and optionally `renderer`, `style`, `image_size`.
+    `observables` it enables, and optionally `renderer`, `style`, `image_size`, `lao_deg`.
     """
     import yaml
 
@@ -56,7 +59,8 @@ def load_presets(folder) -> dict:
         if spec.get("name") != path.stem or not spec.get("observables") or unknown:
             raise ValueError(f"{path}: a preset needs name: {path.stem} and observables from "
                              f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})")
-        options = {key: spec[key] for key in ("renderer", "style", "image_size") if spec.get(key) is not None}
+        options = {key: spec[key] for key in ("renderer", "style", "image_size", "lao_deg")
+                   if spec.get(key) is not None}
         presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
     return presets
 
@@ -93,6 +97,8 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
     if not settings.noise_std >= 0:
         raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
+    if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
+        raise ValueError(f"lao_deg={settings.lao_deg!r} must be between -90 and 90 (degrees; 0 = AP)")
     return settings
 
 

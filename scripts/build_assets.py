@@ -9,8 +9,9 @@
 Writes assets/<name>/{meta.json, visual.stl, collision.npz} and prints, per
 asset, its arch-type distance (mm and CCA diameters, with the clinical class),
 tortuosity (path/chord of the arch and mean of the branches), triangle and hull
-counts, build time, folder size and the centerline length from the entry to
-each site.
+counts, build time, folder size, the centerline length from the entry to
+each site and the arch's obliquity (the BCA-LSA ostia line's angle with the
+coronal plane, with the `arch_rotation_deg` that turned it).
 """
 
 import argparse
@@ -57,6 +58,8 @@ def main(argv=None) -> int:
               f"{r.seconds:5.1f}s {folder_size(r.path) / 1e6:6.2f}MB")
         paths = ", ".join(f"{b} {r.path_length_m[b] * 100:.1f} cm" for b in BRANCHES)
         extra = f"; max aortic diameter {r.max_aortic_diameter_m * 1e3:.1f} mm" if PRESETS[name].aneurysm_diameter_m else ""
+        extra += (f"; obliquity (BCA-LSA ostia line from the coronal plane) {r.obliquity_deg:.1f} deg"
+                  f" (arch_rotation_deg {PRESETS[name].arch_rotation_deg:g})")
         print(f"{'':<15} entry->site {paths}{extra}; -> {r.path}")
         if args.check:
             same = [(args.out / name / f).is_file() and (args.out / name / f).read_bytes() == (r.path / f).read_bytes()

@@ -56,6 +56,7 @@ def build_task(
     renderer: str | None = None,
     style: str | None = None,
     noise_std: float | None = None,
+    lao_deg: float | None = None,
     **task_kwargs,
 ) -> Navigate:
     """The Navigate task for a (target, aorta) pair with entity parameters overridden.
@@ -63,7 +64,9 @@ def build_task(
     `aorta="custom"` generates an aorta from `aorta_params` (generator fields of
     `cathsim_dmc.anatomy.ArchParams`, optionally `preset`), cached after its first build.
     `image_size`, `renderer` ("raster" or "gl"), `style` ("camera" or "fluoro") and
-    `noise_std` (grey levels) override the observation preset's image settings.
+    `noise_std` (grey levels) override the observation preset's image settings; `lao_deg`
+    turns the top camera (images and videos) into a left anterior oblique view of that
+    many degrees (negative: right anterior oblique; 0, the presets' default: AP).
     `physics="accurate"` (default) or `"fast"` picks the solver settings (`Navigate`).
     """
     validate(task, aorta, obs)
@@ -76,7 +79,7 @@ def build_task(
         aorta = generated_asset(dict(aorta_params or {}))
     elif aorta_params:
         raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
-    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std)
+    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std, lao_deg=lao_deg)
     settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
@@ -98,7 +101,8 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
     `aorta="random"` returns a `RandomAnatomyEnvironment`: the anatomy is redrawn every
     `resample_every` episodes from a pool, set by `aorta_params` (`pool_size`, `pool_seed`,
     `resample_every`, `order` ("random" or "cycle"), `prebuild`, `assets`, and `sample_arch_params`'s distribution:
-    `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`).
+    `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`, `obliquity_deg`,
+    `obliquity_range_deg`).
     """
     if aorta == RANDOM_AORTA:
         params = kwargs.pop("aorta_params", None)

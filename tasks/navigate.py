@@ -174,7 +174,7 @@ class Navigate(composer.Task):
 
         self._arena = OperatingArena(timestep_s=guidewire.physics_timestep_s, blood_drag=blood_drag, physics=physics)
         self._arena.attach(aorta)
-        self._arena.frame_cameras(aorta.bounds_m)
+        self._arena.frame_cameras(aorta.bounds_m, lao_deg=observations.lao_deg)
         robot_frame = self._arena.attach(robot)
         # The robot's introducer sheath seals the access (the vessel's open end) and
         # reaches sheath_depth_m into the lumen: its tip, the robot's outlet, lies there.

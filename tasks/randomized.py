@@ -21,7 +21,8 @@ import numpy as np
 
 RANDOM_AORTA = "random"
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
-DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale")
+DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale", "obliquity_deg",
+                     "obliquity_range_deg")
 POOL_KEYS = ("pool_size", "pool_seed", "resample_every", "order", "assets", "prebuild")
 ORDERS = ("random", "cycle")
 

@@ -31,7 +31,8 @@ TYPE1 = ASSETS / "type1"
 SHIPPED = list(PRESETS)
 MM = 1e-3
 # Clinical arch type each shipped variant must have.
-EXPECTED_TYPE = {"type1": "I", "type2": "II", "type3": "III", "aneurysm": "I", "low_tortuosity": "I", "bovine": "I"}
+EXPECTED_TYPE = {"type1": "I", "type2": "II", "type3": "III", "aneurysm": "I", "low_tortuosity": "I", "bovine": "I",
+                 "type1_oblique": "I", "type2_oblique": "II", "type3_oblique": "III"}
 
 _cache = {}
 

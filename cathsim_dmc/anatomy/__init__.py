@@ -18,9 +18,10 @@ checks), containment, paths; polyline helpers. No module here needs MuJoCo or dm
     inside = Containment(lumen_field(asset), tolerance_m=1e-3).contains(points)   # (N,) bool
 """
 
-from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RATIO, ARCH_TYPE_RATIO_RANGE,
-                                      ARCH_TYPES, BRANCHES, PRESETS, ArchModel, ArchParams, Vessel, arch_type_of,
-                                      build_arch, normalize_arch_type, path_to_site, with_arch_type)
+from cathsim_dmc.anatomy.arch import (ARCH_OBLIQUITY_DEG, ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RATIO,
+                                      ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, BRANCHES, PRESETS, ArchModel, ArchParams,
+                                      Vessel, arch_type_of, build_arch, normalize_arch_type, ostia_obliquity_deg,
+                                      path_to_site, with_arch_type)
 from cathsim_dmc.anatomy.asset import (FORMAT_VERSION, AortaAsset, BuildReport, Centerline, build_asset,
                                        load_asset, write_asset)
 from cathsim_dmc.anatomy.containment import Channel, Containment, LumenField, build_lumen_field, lumen_field
@@ -32,9 +33,9 @@ from cathsim_dmc.anatomy.validate import ValidationReport, validate_asset
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 __all__ = [
-    "ARCH_TYPE_ELONGATION", "ARCH_TYPE_NOMINAL_RATIO", "ARCH_TYPE_RATIO_RANGE", "ARCH_TYPES", "BRANCHES",
+    "ARCH_OBLIQUITY_DEG", "ARCH_TYPE_ELONGATION", "ARCH_TYPE_NOMINAL_RATIO", "ARCH_TYPE_RATIO_RANGE", "ARCH_TYPES", "BRANCHES",
     "PRESETS", "ArchModel", "ArchParams", "Vessel", "arch_type_of", "build_arch", "normalize_arch_type",
-    "path_to_site", "with_arch_type",
+    "ostia_obliquity_deg", "path_to_site", "with_arch_type",
     "FORMAT_VERSION", "AortaAsset", "BuildReport", "Centerline", "build_asset", "load_asset", "write_asset",
     "Channel", "Containment", "LumenField", "build_lumen_field", "lumen_field",
     "CACHE_ENV", "arch_params", "cache_root", "generated_asset", "params_hash", "sample_arch_params",

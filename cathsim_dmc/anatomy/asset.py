@@ -328,10 +328,26 @@ class BuildReport:
     path_length_m: Dict[str, float]
     tortuosity: Dict[str, float] = dataclasses.field(default_factory=dict)
     max_aortic_diameter_m: float = 0.0
+    obliquity_deg: float = 0.0  # BCA-LSA ostia line from the coronal plane (ArchModel.obliquity_deg)
 
     @property
     def arch_type_ratio(self) -> float:
         return self.arch_type_distance_m / self.cca_diameter_m
+
+
+# Generator fields added after assets were shipped: written to meta.json (and hashed
+# for the cache) only when they differ from these defaults, so that every asset and
+# cache key made before them stays the same, byte for byte.
+LATER_FIELD_DEFAULTS = {"arch_rotation_deg": 0.0}
+
+
+def params_record(params) -> dict:
+    """The generator parameters as meta.json stores them (`LATER_FIELD_DEFAULTS`)."""
+    record = dataclasses.asdict(params)
+    for key, default in LATER_FIELD_DEFAULTS.items():
+        if record.get(key) == default:
+            del record[key]
+    return record
 
 
 def build_asset(params, folder) -> BuildReport:
@@ -379,13 +395,14 @@ def build_asset(params, folder) -> BuildReport:
         sites={b: model.sites[b] for b in arch_lib.BRANCHES},
         entry_position=model.entry_position, entry_direction=model.entry_direction,
         centerlines=centerlines, wall_thickness_m=p.wall_thickness_m,
-        params=dataclasses.asdict(p),
+        params=params_record(p),
         arch_type_distance_m=model.arch_type_distance_m, cca_diameter_m=model.cca_diameter_m,
         extra={"open_end": {"center": json_rounded(model.open_end_center),
                             "normal": [0.0, -1.0, 0.0],
                             "radius_m": json_rounded(model.open_end_radius)},
                "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
                "arch_type": model.arch_type_measured,
+               **({"arch_obliquity_deg": round(model.obliquity_deg, 3)} if p.arch_rotation_deg else {}),
                "ostia": {b: json_rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
                "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
                "max_aortic_diameter_m": json_rounded(max_diameter)})
@@ -393,4 +410,5 @@ def build_asset(params, folder) -> BuildReport:
         path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
         seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,
         cca_diameter_m=model.cca_diameter_m, arch_type=model.arch_type_measured,
-        path_length_m=lengths, tortuosity=tortuosity, max_aortic_diameter_m=max_diameter)
+        path_length_m=lengths, tortuosity=tortuosity, max_aortic_diameter_m=max_diameter,
+        obliquity_deg=model.obliquity_deg)

@@ -29,9 +29,9 @@ from typing import Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, PRESETS, ArchParams,
-                                      normalize_arch_type)
-from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE
+from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, PRESETS,
+                                      ArchParams, build_arch, normalize_arch_type)
+from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE, params_record
 
 # Bump when the pipeline's output for the same parameters changes (invalidates caches).
 GENERATOR_VERSION = 1
@@ -97,7 +97,7 @@ def arch_params(params: Union[ArchParams, Mapping, str]) -> ArchParams:
 
 def params_hash(params: ArchParams) -> str:
     """Stable 16-hex-digit hash of every parameter (plus the format and generator versions)."""
-    payload = json.dumps({"params": dataclasses.asdict(params), "format_version": FORMAT_VERSION,
+    payload = json.dumps({"params": params_record(params), "format_version": FORMAT_VERSION,
                           "generator_version": GENERATOR_VERSION}, sort_keys=True, allow_nan=False)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
@@ -160,6 +160,8 @@ def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] 
                        arch_types: Sequence[str] = ARCH_TYPES, type_weights: Optional[Sequence[float]] = None,
                        size_scale: Tuple[float, float] = (0.85, 1.15),
                        diameter_scale: Tuple[float, float] = (0.85, 1.15),
+                       obliquity_deg: Optional[Tuple[float, float]] = None,
+                       obliquity_range_deg: Tuple[float, float] = (12.0, 68.0),
                        name: str = "sampled") -> ArchParams:
     """Draw a random arch around `base` (default: the type1 preset).
 
@@ -178,7 +180,15 @@ def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] 
     4. one diameter scale factor, uniform in `diameter_scale`, applied to every
        aortic and branch lumen diameter (so the branch/aorta proportions keep
        the base's; the CCA diameter that defines the arch type scales too);
-    5. `seed` (for the generator's own random choices): a uniform integer.
+    5. `seed` (for the generator's own random choices): a uniform integer;
+    6. only with `obliquity_deg=(mean, sd)`: the arch's obliquity (the BCA-LSA ostia
+       line's angle with the coronal plane, `ArchModel.obliquity_deg`) from a normal
+       with that mean and SD clipped to `obliquity_range_deg`, reached by setting
+       `arch_rotation_deg` (the drawn angle minus the unturned arch's own). The
+       published distribution of normal arches is `ARCH_OBLIQUITY_DEG` (39.7 +- 13.8
+       deg); the default range, 12-68 deg, is its mean +- 2 SD. Off by default (the
+       base's `arch_rotation_deg` is kept), and drawn last, so the first five draws
+       are the same either way.
 
     Every other field (aneurysm, bovine, tortuosity, meshing) is the base's.
     """
@@ -210,5 +220,14 @@ def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] 
                     bca_origin_drop_m=um(ratio * changes["lcca_diameter_m"]),
                     arch_width_m=um(b.arch_width_m * width_scale),
                     arch_height_m=um(b.arch_height_m * height_scale * elongation), **changes)
+    if obliquity_deg is not None:
+        mean, sd = (float(v) for v in obliquity_deg)
+        lo, hi = (float(v) for v in obliquity_range_deg)
+        if not (sd >= 0 and -90 < lo <= hi < 90):
+            raise ValueError(f"obliquity_deg={obliquity_deg!r} needs sd >= 0 and obliquity_range_deg="
+                             f"{obliquity_range_deg!r} a (low, high) range within (-90, 90)")
+        target = float(np.clip(rng.normal(mean, sd), lo, hi))
+        unturned = build_arch(out.replace(arch_rotation_deg=0.0)).obliquity_deg
+        out = out.replace(arch_rotation_deg=round(target - unturned, 3))
     out.validate()
     return out

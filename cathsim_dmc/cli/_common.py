@@ -132,7 +132,7 @@ def explicit_override(key: str) -> bool:
 
 # Options that change what an agent sees or drives. A checkpoint records them (policy.json)
 # and is evaluated, and replayed for datasets, with them whatever the command line says.
-IMAGE_OPTIONS = ("renderer", "style")
+IMAGE_OPTIONS = ("renderer", "style", "lao_deg")
 AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations")
 
 
@@ -144,8 +144,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     """`CathSimEnv(**...)` / `tasks.load(**...)` arguments from a tool's Hydra config.
 
     Reads the `task` group (target, success radius and reward, time limit, insertion
-    limit, physics settings), `aorta` (name, generator parameters), `obs` (preset, renderer, style, extra
-    observations) and, with `training`, the training reward (`reward` group): evaluation
+    limit, physics settings), `aorta` (name, generator parameters), `obs` (preset, renderer, style,
+    LAO angle, extra observations) and, with `training`, the training reward (`reward` group): evaluation
     always scores the paper's task. With `policy` a CheckpointPolicy, its observation
     preset and the options it was trained with win. The task's values are checked here,
     so that a bad one fails before any work (`tasks.check_options`).
@@ -169,6 +169,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     if obs is not None:
         kwargs["obs"] = obs.name
         kwargs.update({key: obs[key] for key in IMAGE_OPTIONS if obs.get(key) is not None})
+        if not kwargs.get("lao_deg"):  # the AP view: recorded as before the option existed
+            kwargs.pop("lao_deg", None)
         if obs.get("extra"):
             kwargs["extra_observations"] = tuple(obs.extra)
     if training and cfg.get("reward") is not None:
