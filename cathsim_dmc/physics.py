@@ -63,7 +63,8 @@ PHYSICS_SETTINGS = {
     "fast": PhysicsSettings(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
                             jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True),
 }
-DEFAULT_PHYSICS = "accurate"  # `fast` becomes the default once it passes the fidelity gate
+# `fast` passed the fidelity gate (scripts/fidelity_gate.py; docs/model.md, "Solver settings").
+DEFAULT_PHYSICS = "fast"
 
 
 def physics_settings(physics) -> PhysicsSettings:

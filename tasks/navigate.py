@@ -102,9 +102,9 @@ class Navigate(composer.Task):
     aim / pi), faded out where the path runs straight ahead, so aiming is paid for the
     step it happens rather than only when the tip later moves.
 
-    Physics: `physics="accurate"` (the default; Newton) or `"fast"` (PGS capped at 10
-    iterations, dense Jacobian, noslip off, sleep on; about twice the speed in wall
-    contact), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
+    Physics: `physics="fast"` (the default: PGS capped at 10 iterations, dense Jacobian,
+    noslip off, sleep on; 2.5x the speed of `accurate` in wall contact) or `"accurate"`
+    (Newton), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
 
     Access: the robot's introducer sheath goes in through the aorta's open lower end
     (`Aorta.access_position_m`), its seal plate closing that end, and its tip (the

@@ -102,7 +102,7 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
                                "task.insertion_limit_margin_m=0.02"])
     scored = env_kwargs(train)
     assert scored == {"task": "bca", "aorta": "type1", "obs": "enn", "delta_m": 0.004, "success_reward": 10.0,
-                      "dense": True, "max_steps": 7, "insertion_limit_margin_m": 0.02, "physics": "accurate",
+                      "dense": True, "max_steps": 7, "insertion_limit_margin_m": 0.02, "physics": "fast",
                       "renderer": "raster", "style": "fluoro", "extra_observations": ("wire_slack",)}
     # Only training uses the shaping reward: evaluation scores the paper's task.
     assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0,
@@ -111,9 +111,9 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"insertion_limit_margin_m": 0.0})
     assert env_kwargs(_compose("eval", ["obs=enn"]), policy=policy) == {
         "task": "bca", "aorta": "type1", "obs": "internal", "delta_m": 0.004, "success_reward": 10.0, "dense": True,
-        "max_steps": 300, "physics": "accurate", "renderer": "raster", "style": "camera",
+        "max_steps": 300, "physics": "fast", "renderer": "raster", "style": "camera",
         "insertion_limit_margin_m": 0.0}
-    assert env_kwargs(_compose("eval", ["task.physics=fast"]))["physics"] == "fast"
+    assert env_kwargs(_compose("eval", ["task.physics=accurate"]))["physics"] == "accurate"
     # Tools without an obs group (teleop, export) leave the preset to the environment.
     assert "obs" not in env_kwargs(_compose("teleop", ["aorta=type2"]))
 
