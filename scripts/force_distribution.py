@@ -146,7 +146,10 @@ def run_expert(aorta: str, target: str, episodes: int, env_kwargs: dict, keep: i
     return samples
 
 
-def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: int = 0) -> Samples:
+def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: int = 0, report_every: int = 0,
+                    report=None) -> Samples:
+    """`steps` adversarial control steps; every `report_every` steps `report(samples)` sees
+    the samples so far (a long sweep keeps its partial results)."""
     # Long episodes, so that bursts reach the end of the stroke and buckle the wire.
     kwargs = dict(env_kwargs)
     kwargs.setdefault("max_steps", 1000)
@@ -164,6 +167,8 @@ def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: i
             env.reset()
             probe.attach()
             samples.episodes += 1
+        if report is not None and report_every and k % report_every == 0:
+            report(samples)
     env.close()
     return samples
 
@@ -245,6 +250,8 @@ def main(argv=None) -> int:
     parser.add_argument("--task", nargs="*", default=[], metavar="KEY=VALUE", help="Navigate overrides")
     parser.add_argument("--top", type=int, default=10, help="largest physics-step forces listed")
     parser.add_argument("--json", help="write the summaries (with the largest events) to this file")
+    parser.add_argument("--report-every", type=int, default=10_000,
+                        help="adversarial steps between progress lines (and, with --json, <json>.partial files)")
     args = parser.parse_args(argv)
     env_kwargs = _overrides(args.task)
     if args.guidewire:
@@ -253,11 +260,22 @@ def main(argv=None) -> int:
         env_kwargs["robot"] = _overrides(args.robot)
 
     summaries, started = [], time.time()
+
+    def report_partial(samples):
+        partial = summary(samples)
+        print(f"# {partial['aorta']} adversarial: {partial['control_steps']} steps so far, physics max "
+              f"{partial['physics'][-1]:.2f} N, escapes {partial['escapes']} ({time.time() - started:.0f} s)",
+              file=sys.stderr, flush=True)
+        if args.json:
+            with open(args.json + ".partial", "w") as f:
+                json.dump(dict(args=vars(args), summaries=[*summaries, partial]), f, indent=1)
+
     for aorta in args.aortas:
         runs = [lambda t=t: run_expert(aorta, t, args.episodes, env_kwargs, args.top, args.seed)
                 for t in args.targets if args.episodes > 0]
         if args.adversarial_steps > 0:
-            runs.append(lambda: run_adversarial(aorta, args.adversarial_steps, env_kwargs, args.top, args.seed))
+            runs.append(lambda: run_adversarial(aorta, args.adversarial_steps, env_kwargs, args.top, args.seed,
+                                                args.report_every, report_partial))
         for run in runs:
             summaries.append(summary(run()))
             s = summaries[-1]
