@@ -24,6 +24,7 @@ from cathsim_dmc import geom_groups
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import FollowerRobot, Guidewire
+from cathsim_dmc.entities.guidewire import second_moment_of_area
 
 
 def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSICS) -> mjcf.Physics:
@@ -55,8 +56,7 @@ def cantilever_deflection(n_segments: int, physics_setting=cs_physics.DEFAULT_PH
         if step > 100 and np.abs(data.qvel).max() < 1e-8:
             at_rest = True
             break
-    second_moment_m4 = np.pi * wire.core_diameter_m**4 / 64
-    analytic = force_n * length_m**3 / (3 * youngs_modulus_pa * second_moment_m4)
+    analytic = force_n * length_m**3 / (3 * youngs_modulus_pa * second_moment_of_area(wire.core_diameter_m))
     return float(data.site_xpos[tip_site][0]), float(analytic), at_rest
 
 

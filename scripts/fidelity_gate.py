@@ -29,6 +29,7 @@ import numpy as np
 
 from cathsim_dmc import fidelity
 from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.metrics import polyline_length_m
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.physics import PHYSICS_SETTINGS
 from cathsim_dmc.policies import make_policy
@@ -60,11 +61,10 @@ def expert_episodes(setting: str, aorta: str, target: str, seeds: int) -> dict:
     for seed in range(seeds):
         observation, info = env.reset(seed=seed)
         policy = make_policy("expert", seed=seed)
-        previous, path, done = np.asarray(info["tip_position_m"]), 0.0, False
+        tips, done = [info["tip_position_m"]], False
         while not done:
             observation, _, terminated, truncated, info = env.step(policy(observation, env))
-            tip = np.asarray(info["tip_position_m"])
-            path, previous = path + float(np.linalg.norm(tip - previous)), tip
+            tips.append(info["tip_position_m"])
             means.append(info["mean_contact_force_n"])
             peaks.append(info["peak_contact_force_n"])
             done = terminated or truncated
@@ -72,7 +72,7 @@ def expert_episodes(setting: str, aorta: str, target: str, seeds: int) -> dict:
         escapes += int(info["escaped"])
         divergences += int(info["diverged"])
         lengths.append(info["step"])
-        paths.append(path)
+        paths.append(polyline_length_m(tips))
     env.close()
     return dict(successes=successes, episodes=seeds, escapes=escapes, divergences=divergences, steps=lengths,
                 path_m=paths, mean_n=means, peak_n=peaks)

@@ -103,7 +103,7 @@ class Navigate(composer.Task):
     step it happens rather than only when the tip later moves.
 
     Physics: `physics="fast"` (the default: PGS capped at 10 iterations, dense Jacobian,
-    noslip off, sleep on; 2.5x the speed of `accurate` in wall contact) or `"accurate"`
+    noslip off, sleep on; about twice the speed of `accurate` in wall contact) or `"accurate"`
     (Newton), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
 
     Access: the robot's introducer sheath goes in through the aorta's open lower end
@@ -198,8 +198,8 @@ class Navigate(composer.Task):
         self._stepped_state = None  # (qpos, qvel) as the last control step left them
         self._wall_force = None  # cs_physics.WallForceTotal for this physics (set per episode)
         self._tip_location = None  # the tip on the centerline tree, cached per control step
-        self._force_sum_n, self._force_samples = 0.0, 0  # over the physics steps of one control step
-        self._force_peak_n = 0.0
+        # Sum, count and largest of the physics-step totals of one control step.
+        self._force_sum_n, self._force_samples, self._force_peak_n = 0.0, 0, 0.0
         self._mean_force_n = self._peak_force_n = 0.0
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
         self._aim_potential = self._previous_aim_potential = 0.0
