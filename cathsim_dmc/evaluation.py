@@ -160,7 +160,8 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     recorder.save(out_dir / "trajectories.npz")
     if frames:
         write_video(out_dir / f"video.{video_format}", frames)
-    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name, **(label or {})}
+    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
+             "physics": task.physics_setting, **(label or {})}
     # One anatomy's picture cannot hold paths from several (aorta=random): no path.png then.
     arrays = recorder.arrays()
     asset = None if "episode_aorta" in arrays else task.aorta.asset

@@ -114,6 +114,9 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
         "max_steps": 300, "physics": "fast", "renderer": "raster", "style": "camera",
         "insertion_limit_margin_m": 0.0}
     assert env_kwargs(_compose("eval", ["task.physics=accurate"]))["physics"] == "accurate"
+    # ...and its solver settings: an agent trained under accurate is scored under accurate.
+    trained_accurate = CheckpointPolicy(None, "internal", {}, {"physics": "accurate"})
+    assert env_kwargs(_compose("eval"), policy=trained_accurate)["physics"] == "accurate"
     # Tools without an obs group (teleop, export) leave the preset to the environment.
     assert "obs" not in env_kwargs(_compose("teleop", ["aorta=type2"]))
 

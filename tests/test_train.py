@@ -41,15 +41,25 @@ def test_train_then_resume_continues_from_the_last_checkpoint(tmp_path):
     assert _steps(run / "final_model.zip") == 90
 
 
-def test_trained_checkpoint_evaluates_with_cathsim_eval(tmp_path):
+def test_trained_checkpoint_evaluates_with_cathsim_eval_under_its_own_physics(tmp_path):
     run = tmp_path / "run"
-    assert _train([*TINY, "trainer.total_timesteps=30", f"hydra.run.dir={run}"], tmp_path).returncode == 0
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={run}", "episodes=1",
-                             "task.max_steps=10", "video=false", f"hydra.run.dir={tmp_path}/eval"],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stderr[-2000:]
-    report = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    trained = _train([*TINY, "trainer.total_timesteps=30", "task.physics=accurate", f"hydra.run.dir={run}"], tmp_path)
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    assert json.loads((run / "policy.json").read_text())["env_options"]["physics"] == "accurate"
+
+    def evaluate(name, *extra):
+        result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={run}", "episodes=1",
+                                 "task.max_steps=10", "video=false", f"hydra.run.dir={tmp_path}/{name}", *extra],
+                                cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert result.returncode == 0, result.stderr[-2000:]
+        return json.loads((tmp_path / name / "metrics.json").read_text())
+
+    # The default (fast) does not silently replace the setting the agent was trained under...
+    report = evaluate("eval")
     assert report["policy"] == "run" and report["summary"]["episode_length"]["mean"] == 10
+    assert report["physics"] == "accurate"
+    # ...but an explicit one is a transfer test.
+    assert evaluate("transfer", "task.physics=fast")["physics"] == "fast"
 
 
 def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():

@@ -131,9 +131,10 @@ def explicit_override(key: str) -> bool:
 
 
 # Options that change what an agent sees or drives. A checkpoint records them (policy.json)
-# and is evaluated, and replayed for datasets, with them whatever the command line says.
+# and is evaluated, and replayed for datasets, with them whatever the command line says
+# (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
 IMAGE_OPTIONS = ("renderer", "style", "lao_deg")
-AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations")
+AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations", "physics")
 
 
 def pick(options: Mapping, keys: Sequence[str]) -> dict:

@@ -32,7 +32,12 @@ def evaluate(cfg) -> dict:
         # would report numbers for a configuration nobody asked for.
         raise ValueError(f"obs={cfg.obs.name!r}, but {cfg.policy} was trained with obs={policy.obs_preset!r} and is "
                          f"evaluated with it; leave obs= out")
-    env = CathSimEnv(**env_kwargs(cfg, policy=policy))
+    kwargs = env_kwargs(cfg, policy=policy)
+    if checkpoint and explicit_override("task.physics"):
+        # A deliberate transfer test: the agent under other solver settings than it was
+        # trained with (it records its own in policy.json, and those win otherwise).
+        kwargs["physics"] = cfg.task.physics
+    env = CathSimEnv(**kwargs)
     name = Path(str(cfg.policy)).name if checkpoint else str(cfg.policy)
     try:
         report = evaluate_policy(env, policy, name, cfg.episodes, seed, out_dir, cfg.video, cfg.video_size,
