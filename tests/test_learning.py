@@ -240,3 +240,19 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     saved = SAC.load(tmp_path / "checkpoints" / "best.zip", device="cpu")
     saved_flat = torch.cat([p.detach().flatten() for p in saved.actor.parameters()])
     torch.testing.assert_close(saved_flat, averaged)
+
+
+@pytest.mark.parametrize("overrides, episodes, capacity", [
+    ([], 100, 20_000),
+    (["task=lcca"], 300, 40_000),  # the LCCA's own budget (conf/demos_for_task)
+    (["task=lcca", "demos=none"], 0, 20_000),  # no demonstrations means none, whatever the target
+    (["task=lcca", "demos.episodes=50"], 50, 40_000),  # the command line still wins
+])
+def test_the_demonstration_budget_follows_the_target(overrides, episodes, capacity):
+    from hydra import compose, initialize_config_dir
+
+    from cathsim_dmc.paths import conf_root
+
+    with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
+        demos = compose(config_name="train", overrides=overrides).demos
+    assert (demos.episodes, demos.capacity) == (episodes, capacity)
