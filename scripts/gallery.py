@@ -1,14 +1,15 @@
 #!/usr/bin/env python
 """Render every shipped aorta into one labelled PNG (docs/gallery.png).
 
-    python scripts/gallery.py                      # all shipped variants
-    python scripts/gallery.py type1 bovine --out /tmp/g.png
+    python scripts/gallery.py                      # all shipped variants, and each one's card image
+    python scripts/gallery.py type1 bovine --out /tmp/g.png --crops /tmp/aortas
 
 Each variant is drawn with MuJoCo (its `Aorta` entity in the `OperatingArena`,
 all at the same scale) from the `top` camera (antero-posterior, as in
 fluoroscopy) and the `side` camera (lateral), with its target sites marked and
 the arch-type distance (top of the arch down to the BCA origin) drawn on the AP
-view.
+view. Each variant's panel is also saved on its own (`--crops`, docs/aortas/<name>.png:
+the image of its card in assets/<name>/README.md).
 """
 
 import argparse
@@ -69,6 +70,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("names", nargs="*", help="variants (default: every shipped one)")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "docs" / "gallery.png")
+    parser.add_argument("--crops", type=pathlib.Path, default=ROOT / "docs" / "aortas",
+                        help="folder for one image per variant (its panel of the gallery)")
     args = parser.parse_args(argv)
     shipped = available_aortas()
     names = args.names or [n for n in ORDER if n in shipped] + [n for n in shipped if n not in ORDER]
@@ -88,10 +91,12 @@ def main(argv=None) -> int:
     rows = int(np.ceil(len(names) / cols))
     fig = plt.figure(figsize=(cols * 5.6, rows * 4.6), dpi=110, facecolor="white")
     outer = fig.add_gridspec(rows, cols, wspace=0.04, hspace=0.16, left=0.01, right=0.99, top=0.875, bottom=0.02)
+    panels = {}
     for k, name in enumerate(names):
         asset, images, proj = render(name, common)
         inner = outer[k // cols, k % cols].subgridspec(1, 2, width_ratios=[1.0, 0.42], wspace=0.02)
         ax_top, ax_side = fig.add_subplot(inner[0]), fig.add_subplot(inner[1])
+        panels[name] = (ax_top, ax_side)
         ax_top.imshow(images["top"])
         # Lateral view: keep the columns that show the vessel.
         side = images["side"]
@@ -155,6 +160,16 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110, facecolor="white")
     print(f"wrote {args.out}")
+    from matplotlib.transforms import Bbox
+
+    args.crops.mkdir(parents=True, exist_ok=True)
+    renderer = fig.canvas.get_renderer()
+    for name, axes in panels.items():
+        # The panel's two views with their title, in inches, as savefig crops.
+        box = Bbox.union([ax.get_tightbbox(renderer) for ax in axes]).transformed(fig.dpi_scale_trans.inverted())
+        path = args.crops / f"{name}.png"
+        fig.savefig(path, dpi=110, facecolor="white", bbox_inches=box.padded(0.05))
+        print(f"wrote {path}")
     return 0
 
 
