@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main job on a built-in default: train a navigator for the BCA in the type I arch
 # from scratch (SAC with 100 scripted-expert demonstrations mixed into every batch; the
-# defaults of conf/train.yaml with a 10k-step budget, about 10 minutes on 2 CPU cores),
+# defaults of conf/train.yaml with a 10k-step budget, 10-15 minutes on 2 CPU cores),
 # then report its evaluation over 20 deterministic episodes. Extra arguments are Hydra
 # overrides.
 set -euo pipefail
