@@ -139,6 +139,8 @@ def main(argv=None) -> int:
                 extra = f", {meta['max_aortic_diameter_m'] * 1e3:.0f} mm aneurysm"
             if meta.get("params", {}).get("bovine"):
                 extra = ", common BCA-LCCA origin"
+            if meta.get("params", {}).get("arch_rotation_deg"):
+                extra = f", obliquity {meta['arch_obliquity_deg']:.1f} deg"
             title = (f"{name}: type {meta.get('arch_type', '?')}{extra}; tortuosity {tort.get('arch', float('nan')):.2f}\n"
                      f"BCA origin {asset.arch_type_distance_m * 1e3:.1f} mm = {ratio:.2f} CCA diameters below arch top")
         ax_top.set_title(title, fontsize=9.5, loc="left")
