@@ -25,9 +25,10 @@ sys.path.insert(0, str(ROOT))
 from cathsim_dmc.anatomy import BRANCHES, PRESETS, build_asset  # noqa: E402
 
 FILES = ("meta.json", "visual.stl", "collision.npz")
-# Coordinates may differ in their last float32 bits between machines (vectorised maths
-# takes CPU-dependent paths: assets/bovine rebuilds 0.07 micrometres off elsewhere), so
-# --check accepts coordinates this close; everything else must match exactly.
+# Coordinates may differ in their last float32 bits between machines (the CPU's vectorised
+# paths or library versions; assets/bovine rebuilds 0.07 micrometres off on the 2026-11-25
+# machines, type1 exactly), so --check accepts coordinates this close; everything else
+# must match exactly.
 ROUNDING_TOLERANCE_M = 1e-6
 NORMAL_TOLERANCE = 1e-4  # a tiny facet's normal carries its vertices' rounding, magnified
 

@@ -1,5 +1,5 @@
 """`scripts/build_assets.py --check`'s comparison: byte-identical, or equal apart from
-coordinates in their last float32 bits (CPU-dependent vectorised maths), never more."""
+coordinates in their last float32 bits (which differ between machines), never more."""
 
 import importlib.util
 import pathlib
