@@ -9,10 +9,10 @@ import trimesh
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import containment, signed_distance
 from cathsim_dmc.anatomy.validate import open_end_plane
-from cathsim_dmc.paths import available_aortas
+from shipped import aorta_params
 
 
-@pytest.mark.parametrize("aorta", available_aortas())
+@pytest.mark.parametrize("aorta", aorta_params())
 def test_task_containment(aorta):
     task = tasks.build_task("bca", aorta)
     allowed, asset = task.containment, task.aorta.asset

@@ -9,10 +9,10 @@ import pytest
 
 from cathsim_dmc import geom_groups, tasks
 from cathsim_dmc.export import START_KEY, export_scene
-from cathsim_dmc.paths import available_aortas
+from shipped import aorta_params
 
 
-@pytest.mark.parametrize("aorta", available_aortas())
+@pytest.mark.parametrize("aorta", aorta_params())
 def test_exported_scene_reloads_and_steps(aorta, tmp_path):
     env = tasks.load("bca", aorta, seed=0)
     env.reset()

@@ -11,14 +11,14 @@ import pytest
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy.containment import Channel, Containment
 from cathsim_dmc.anatomy.validate import open_end_plane
-from cathsim_dmc.paths import available_aortas
+from shipped import aorta_params
 
 
 def _outlet_m(task):
     return task.aorta.access_position_m + task.robot.sheath_depth_m * task.aorta.entry_direction
 
 
-@pytest.mark.parametrize("aorta", available_aortas())
+@pytest.mark.parametrize("aorta", aorta_params())
 def test_sheath_reaches_into_the_lumen_and_the_seal_closes_the_open_end(aorta):
     env = tasks.load("bca", aorta, seed=0)
     env.reset()

@@ -6,6 +6,7 @@ import pytest
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.paths import available_aortas, resolve_asset
+from shipped import task_params
 
 
 def test_all_tasks_lists_every_pair():
@@ -24,7 +25,7 @@ def test_unknown_names_name_the_choices(bad, match):
         tasks.load(**kwargs)
 
 
-@pytest.mark.parametrize("task, aorta", tasks.ALL_TASKS)
+@pytest.mark.parametrize("task, aorta", task_params(tasks.TARGETS))
 def test_task_observations_rewards_and_truncation(task, aorta):
     env = tasks.load(task, aorta, obs="enn", seed=0, max_steps=5)
     spec = env.observation_spec()
