@@ -5,14 +5,19 @@ arch), so in the default suite they would repeat the plain arch's test at its co
 
 import pytest
 
+from cathsim_dmc import tasks
 from cathsim_dmc.paths import available_aortas
 
 
+def _slow_if_oblique(aorta: str, *values):
+    return pytest.param(*values, marks=pytest.mark.slow) if aorta.endswith("_oblique") else values
+
+
 def aorta_params() -> list:
-    return [pytest.param(name, marks=pytest.mark.slow) if name.endswith("_oblique") else name
-            for name in available_aortas()]
+    """Every shipped aorta's name."""
+    return [_slow_if_oblique(name, name) for name in available_aortas()]
 
 
-def task_params(targets) -> list:
-    return [pytest.param(target, name, marks=pytest.mark.slow) if name.endswith("_oblique") else (target, name)
-            for target in targets for name in available_aortas()]
+def task_params() -> list:
+    """Every (target, aorta) pair of the suite, `tasks.ALL_TASKS`."""
+    return [_slow_if_oblique(aorta, target, aorta) for target, aorta in tasks.ALL_TASKS]

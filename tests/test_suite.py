@@ -25,7 +25,7 @@ def test_unknown_names_name_the_choices(bad, match):
         tasks.load(**kwargs)
 
 
-@pytest.mark.parametrize("task, aorta", task_params(tasks.TARGETS))
+@pytest.mark.parametrize("task, aorta", task_params())
 def test_task_observations_rewards_and_truncation(task, aorta):
     env = tasks.load(task, aorta, obs="enn", seed=0, max_steps=5)
     spec = env.observation_spec()
