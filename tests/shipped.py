@@ -10,7 +10,8 @@ from cathsim_dmc.paths import available_aortas
 
 
 def _slow_if_oblique(aorta: str, *values):
-    return pytest.param(*values, marks=pytest.mark.slow) if aorta.endswith("_oblique") else values
+    # pytest.param for every case: a bare 1-tuple would reach the test as a tuple.
+    return pytest.param(*values, marks=pytest.mark.slow if aorta.endswith("_oblique") else ())
 
 
 def aorta_params() -> list:
