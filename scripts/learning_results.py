@@ -56,6 +56,10 @@ VARIANTS = {
     "demos_takeover_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
                                  "demos.bc_filter=q", "demos.takeover_rounds=3", "demos.takeover_episodes=10",
                                  "demos.takeover_max_student_steps=150"], 20_000),
+    # The online phase starts warm: the pre-trained actor acts and only the critic learns
+    # for the first 2,000 steps (demos.warm_start_steps).
+    "demos_warm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
+                             "demos.warm_start_steps=2000"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
     "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean", *NO_DEMOS], 100_000),

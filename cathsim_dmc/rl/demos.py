@@ -299,6 +299,13 @@ class SACfD(SAC):
     term, Fujimoto and Gu, 2021), which keeps the actor near the expert even where the
     critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
 
+    With `warm_start_steps` > 0 the online phase starts warm: for that many environment
+    steps the (pre-trained) actor itself takes the actions, stochastically, instead of
+    SB3's uniform random actions before `learning_starts`, and the updates in that time
+    train the critic only. The critic, warmed up on the expert's actions alone, first
+    learns the values of the agent's own before the actor follows it (the warm-up of
+    WSRL, Zhou et al., 2024, with the actor held still).
+
     `actor_learning_rate_scale` < 1 gives the actor a smaller learning rate than the
     critic (the critic's follows `learning_rate`), so the policy follows the critic more
     slowly.
@@ -313,7 +320,10 @@ class SACfD(SAC):
     BC_FILTERS = ("q", "none")
 
     def __init__(self, *args, bc_weight: float = 0.0, bc_filter: str = "q", actor_average_tau: float = 0.0,
-                 actor_learning_rate_scale: float = 1.0, **kwargs):
+                 actor_learning_rate_scale: float = 1.0, warm_start_steps: int = 0, **kwargs):
+        if int(warm_start_steps) != warm_start_steps or warm_start_steps < 0:
+            raise ValueError(f"warm_start_steps={warm_start_steps!r} must be a whole number >= 0 (0: none)")
+        self.warm_start_steps = int(warm_start_steps)
         self.bc_weight = float(bc_weight)
         if bc_filter not in self.BC_FILTERS:
             raise ValueError(f"bc_filter={bc_filter!r}; valid: {', '.join(self.BC_FILTERS)}")
@@ -328,8 +338,32 @@ class SACfD(SAC):
         super().__init__(*args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        if self.num_timesteps <= self.warm_start_steps:
+            return self._train_critic_only(gradient_steps, batch_size)
         self._train_steps(gradient_steps, batch_size)
         self._update_actor_average(gradient_steps)
+
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
+        # During a warm start the actor acts from the first step: SB3 would take uniform
+        # random actions until learning_starts.
+        return super()._sample_action(0 if self.warm_start_steps else learning_starts, action_noise, n_envs)
+
+    def _train_critic_only(self, gradient_steps: int, batch_size: int) -> None:
+        """Soft Bellman updates of the critics; the actor and the entropy coefficient stay."""
+        self.critic.set_training_mode(True)
+        self._update_learning_rate([self.critic.optimizer])
+        ent_coef = torch.exp(self.log_ent_coef.detach()) if self.ent_coef_optimizer is not None else self.ent_coef_tensor
+        losses = []
+        for step in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            losses.append(float(_critic_step(self, data, ent_coef).item()))
+            if step % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+        self.critic.set_training_mode(False)
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/critic_loss", float(np.mean(losses)))
 
     def _update_learning_rate(self, optimizers) -> None:
         super()._update_learning_rate(optimizers)
