@@ -49,6 +49,8 @@ VARIANTS = {
                                   "algo.actor_learning_rate_scale=0.3"], 20_000),
     "demos_300_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.episodes=300",
                             "demos.capacity=40000"], 20_000),
+    "demos_600_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.episodes=600",
+                            "demos.capacity=80000"], 20_000),
     "demos_nobc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0"],
                             20_000),
     "demos_bcslow_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
