@@ -338,7 +338,7 @@ class SACfD(SAC):
         super().__init__(*args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if self.num_timesteps <= self.warm_start_steps:
+        if self.warm_start_steps and self.num_timesteps <= self.warm_start_steps:
             return self._train_critic_only(gradient_steps, batch_size)
         self._train_steps(gradient_steps, batch_size)
         self._update_actor_average(gradient_steps)
