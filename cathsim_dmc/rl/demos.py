@@ -24,6 +24,8 @@ from stable_baselines3.common.buffers import DictReplayBuffer
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 
+from cathsim_dmc.checks import check_number
+
 
 class DemoReplayBuffer(DictReplayBuffer):
     """A DictReplayBuffer whose batches take `demo_share` of their samples from demonstrations.
@@ -321,9 +323,7 @@ class SACfD(SAC):
 
     def __init__(self, *args, bc_weight: float = 0.0, bc_filter: str = "q", actor_average_tau: float = 0.0,
                  actor_learning_rate_scale: float = 1.0, warm_start_steps: int = 0, **kwargs):
-        if int(warm_start_steps) != warm_start_steps or warm_start_steps < 0:
-            raise ValueError(f"warm_start_steps={warm_start_steps!r} must be a whole number >= 0 (0: none)")
-        self.warm_start_steps = int(warm_start_steps)
+        self.warm_start_steps = check_number("warm_start_steps", warm_start_steps, 0, whole=True)
         self.bc_weight = float(bc_weight)
         if bc_filter not in self.BC_FILTERS:
             raise ValueError(f"bc_filter={bc_filter!r}; valid: {', '.join(self.BC_FILTERS)}")
@@ -349,21 +349,13 @@ class SACfD(SAC):
         return super()._sample_action(0 if self.warm_start_steps else learning_starts, action_noise, n_envs)
 
     def _train_critic_only(self, gradient_steps: int, batch_size: int) -> None:
-        """Soft Bellman updates of the critics; the actor and the entropy coefficient stay."""
-        self.critic.set_training_mode(True)
+        """The critic's updates of `warm_up_critic` on the mixed buffer; the actor and the
+        entropy coefficient stay."""
         self._update_learning_rate([self.critic.optimizer])
-        ent_coef = torch.exp(self.log_ent_coef.detach()) if self.ent_coef_optimizer is not None else self.ent_coef_tensor
-        losses = []
-        for step in range(gradient_steps):
-            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            losses.append(float(_critic_step(self, data, ent_coef).item()))
-            if step % self.target_update_interval == 0:
-                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
-        self.critic.set_training_mode(False)
+        loss = warm_up_critic(self, gradient_steps, batch_size)
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/critic_loss", float(np.mean(losses)))
+        self.logger.record("train/critic_loss", loss)
 
     def _update_learning_rate(self, optimizers) -> None:
         super()._update_learning_rate(optimizers)

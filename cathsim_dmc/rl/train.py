@@ -157,7 +157,7 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     if demos:
         with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos.get("bc_weight", 0.0)),
                           bc_filter=str(demos.get("bc_filter", "q")),
-                          warm_start_steps=int(demos.get("warm_start_steps") or 0),
+                          warm_start_steps=demos.get("warm_start_steps") or 0,
                           replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
                                                     demo_capacity=int(demos["capacity"])))
     policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
