@@ -4,8 +4,8 @@
     python scripts/learning_results.py report --out docs/learning.md --plot docs/learning_curves.png
 
 `run` trains each (variant, task, seed) that has no finished run under --root (a run is
-finished when its eval/metrics.json exists; an interrupted one is resumed from its last
-checkpoint), one after the other. Every run evaluates its policy deterministically every
+finished when its eval/metrics.json exists and it took --steps; an interrupted one, or a
+finished one given a larger --steps, is resumed from its last checkpoint), one after the other. Every run evaluates its policy deterministically every
 --eval-every steps on 10 episodes (evaluations.jsonl; the best one is kept as best.zip)
 and ends with a 50-episode report of best.zip on seeds it was not chosen on.
 `report` reads every run under --root and writes, per (variant, task): steps and wall
@@ -21,6 +21,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from cathsim_dmc.rl.train import checkpoint_step
 
 DEMOS = ["demos=expert"]
 # demos=expert is the training default: the variants without demonstrations must say so.
@@ -62,6 +64,10 @@ VARIANTS = {
     # for the first 2,000 steps (demos.warm_start_steps).
     "demos_warm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
                              "demos.warm_start_steps=2000"], 20_000),
+    # best.zip chosen on 10 + 20 episodes when an evaluation ties or beats it
+    # (trainer.confirm_episodes): the LCCA's 10-episode selections were optimistic.
+    "demos_confirm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
+                                "trainer.confirm_episodes=20"], 20_000),
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
     "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean", *NO_DEMOS], 100_000),
@@ -78,19 +84,21 @@ def run_dir(root: Path, variant: str, task: str, seed: int) -> Path:
 def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
           save_replay_buffer: bool = False) -> None:
     folder = run_dir(root, variant, task, seed)
-    if (folder / "eval" / "metrics.json").is_file():
-        print(f"done already: {folder}")
-        return
     overrides, budget = VARIANTS[variant]
     target, aorta = task.split("-", 1)
     budget = steps or budget
+    last = folder / "checkpoints" / "last.zip"
+    # A finished run is continued when asked for more steps than it took.
+    if (folder / "eval" / "metrics.json").is_file() and not (last.is_file() and checkpoint_step(last) < budget):
+        print(f"done already: {folder}")
+        return
     common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
               f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
               "trainer.progress_bar=false", "trainer.video=false"]
     if save_replay_buffer:
         # With each checkpoint, so a run cut short (a session's end) resumes where it was.
         common.append("trainer.save_replay_buffer=true")
-    if (folder / "checkpoints" / "last.zip").is_file():
+    if last.is_file():
         args = [f"resume={folder}", f"trainer.total_timesteps={budget}", f"hydra.run.dir={folder}"]
     else:
         args = [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common, f"hydra.run.dir={folder}"]

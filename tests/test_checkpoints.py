@@ -137,6 +137,34 @@ def test_a_run_killed_inside_any_checkpoint_write_resumes_from_a_matching_pair(t
         assert resumed.steps == STEPS - step
 
 
+def test_a_run_resumed_without_its_buffer_refills_it_before_training_goes_on(tmp_path):
+    """With no replay buffer saved, the resumed run's first updates would draw every batch
+    from its first few transitions: it takes max(learning_starts, batch_size) steps first."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    _train(tmp_path, STEPS)
+    for buffer in (tmp_path / training.CHECKPOINT_DIR).glob(training.REPLAY_BUFFER_GLOB):
+        buffer.unlink()
+
+    class Updates(BaseCallback):
+        """The update count after every environment step of the resumed run."""
+
+        def _on_training_start(self):
+            self.counts = {}
+
+        def _on_step(self):
+            self.counts[self.model.num_timesteps] = self.model._n_updates
+            return True
+
+    updates = Updates()
+    resumed = _train(tmp_path, 2 * STEPS, resume=True, callbacks=[updates])
+    refill = 16  # the batch size, above learning_starts (10)
+    first = updates.counts[STEPS + 1]
+    assert all(updates.counts[step] == first for step in range(STEPS + 1, STEPS + refill + 1))
+    assert resumed.model._n_updates - first == STEPS - refill  # one update per step after the refill
+    assert resumed.model.replay_buffer.pos == STEPS  # only the resumed run's transitions
+
+
 def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
     _train(tmp_path, STEPS)
     ckpt = tmp_path / training.CHECKPOINT_DIR

@@ -81,6 +81,47 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     assert (tmp_path / "checkpoints" / "best.zip").is_file()
 
 
+@pytest.mark.parametrize("earlier_best, confirmed", [(None, True), (0.5, False)])
+def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path, earlier_best, confirmed):
+    """trainer.confirm_episodes: an evaluation scoring at least the best's rate runs that many
+    more episodes on their own seeds, and best.json holds the pooled score."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.rl import train as training
+
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        cfg = compose("train", overrides=["obs=internal", "demos=none"])
+    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16,
+                policy_kwargs={"net_arch": [32, 32]})
+    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=40, eval_every=20,
+                   eval_episodes=2, confirm_episodes=3, checkpoint_every=0, progress_bar=False, video=False)
+    if earlier_best is not None:  # a best already held, above what this run's evaluations score
+        (tmp_path / "checkpoints").mkdir()
+        (tmp_path / "checkpoints" / "best.json").write_text(json.dumps(
+            {"step": 0, "success_rate": earlier_best, "mean_return": 0.0}))
+    seeds = []
+
+    class SeedLog(CathSimEnv):
+        def reset(self, seed=None, options=None):
+            seeds.append(seed)
+            return super().reset(seed=seed, options=options)
+
+    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
+    try:
+        training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1",
+                       make_eval_env=lambda: SeedLog("bca", "type1", obs="internal", max_steps=5))
+    finally:
+        env.close()
+    one = [20_000, 20_001] + ([40_000, 40_001, 40_002] if confirmed else [])
+    assert seeds == one + one  # the same confirmation seeds at each confirmation
+    records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert [("confirm_success_rate" in r) for r in records] == [confirmed, confirmed]
+    best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
+    assert best.get("episodes") == (5 if confirmed else None)
+
+
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
     from cathsim_dmc.policies import load_checkpoint_policy
 

@@ -335,6 +335,7 @@ class SACfD(SAC):
             raise ValueError(f"actor_average_tau={actor_average_tau!r} must be within [0, 1] (0: no average)")
         self.actor_average_tau = float(actor_average_tau)
         self._actor_average = None  # name -> tensor, like actor.state_dict()
+        self._actor_refills = False
         super().__init__(*args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
@@ -344,9 +345,17 @@ class SACfD(SAC):
         self._update_actor_average(gradient_steps)
 
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
-        # During a warm start the actor acts from the first step: SB3 would take uniform
-        # random actions until learning_starts.
-        return super()._sample_action(0 if self.warm_start_steps else learning_starts, action_noise, n_envs)
+        # During a warm start, or a refill after a resume, the actor acts from the first
+        # step: SB3 would take uniform random actions until learning_starts.
+        actor_acts = self.warm_start_steps or getattr(self, "_actor_refills", False)
+        return super()._sample_action(0 if actor_acts else learning_starts, action_noise, n_envs)
+
+    def refill_before_training(self, steps: int) -> None:
+        """No update for the next `steps` environment steps, while the current actor refills
+        the replay buffer: for a run resumed without its buffer, whose first updates would
+        otherwise draw every batch from the first few transitions."""
+        self.learning_starts = self.num_timesteps + check_number("steps", steps, 0, whole=True)
+        self._actor_refills = True
 
     def _train_critic_only(self, gradient_steps: int, batch_size: int) -> None:
         """The critic's updates of `warm_up_critic` on the mixed buffer; the actor and the
