@@ -64,6 +64,12 @@ VARIANTS = {
     # for the first 2,000 steps (demos.warm_start_steps).
     "demos_warm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
                              "demos.warm_start_steps=2000"], 20_000),
+    # Today's recipe (the unfiltered cloning term) with three rounds of takeover
+    # demonstrations: the expert finishes from where the pre-trained actor has taken the
+    # wire, which on the LCCA is often towards a wrong branch.
+    "demos_takeover_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
+                                       "demos.takeover_rounds=3", "demos.takeover_episodes=20",
+                                       "demos.takeover_max_student_steps=150"], 20_000),
     # best.zip chosen on 10 + 20 episodes when an evaluation ties or beats it
     # (trainer.confirm_episodes): the LCCA's 10-episode selections were optimistic.
     "demos_confirm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
