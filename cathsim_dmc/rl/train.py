@@ -568,10 +568,11 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     if trainer.get("eval_every", 0) > 0 and make_eval_env is not None:
         # Selection episodes are seeded apart from the final report's (10_000 + seed), so
         # the report is not scored on the episodes the best checkpoint was chosen on.
-        # Confirmation episodes have seeds of their own too (40_000 + seed).
+        # Confirmation episodes have seeds of their own too (50_000 + seed), apart from the
+        # demonstrations' (30_000+) and the takeover rounds' (40_000+).
         callbacks.append(PeriodicEval(make_eval_env, trainer["eval_every"], trainer["eval_episodes"], 20_000 + seed,
                                       run_dir=run_dir, confirm_episodes=trainer.get("confirm_episodes") or 0,
-                                      confirm_seed=40_000 + seed))
+                                      confirm_seed=50_000 + seed))
     if trainer.get("progress_bar", True):
         callbacks.append(Progress(total))
     callbacks.extend(extra_callbacks)
