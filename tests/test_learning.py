@@ -114,7 +114,7 @@ def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path
                        make_eval_env=lambda: SeedLog("bca", "type1", obs="internal", max_steps=5))
     finally:
         env.close()
-    one = [20_000, 20_001] + ([40_000, 40_001, 40_002] if confirmed else [])
+    one = [20_000, 20_001] + ([50_000, 50_001, 50_002] if confirmed else [])
     assert seeds == one + one  # the same confirmation seeds at each confirmation
     records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
     assert [("confirm_success_rate" in r) for r in records] == [confirmed, confirmed]
@@ -283,20 +283,20 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     torch.testing.assert_close(saved_flat, averaged)
 
 
-@pytest.mark.parametrize("overrides, episodes, capacity", [
-    ([], 100, 20_000),
-    (["task=lcca"], 300, 40_000),  # the LCCA's own budget (conf/demos_for_task)
-    (["task=lcca", "demos=none"], 0, 20_000),  # no demonstrations means none, whatever the target
-    (["task=lcca", "demos.episodes=50"], 50, 40_000),  # the command line still wins
+@pytest.mark.parametrize("overrides, episodes, capacity, takeover_rounds", [
+    ([], 100, 20_000, 0),
+    (["task=lcca"], 300, 40_000, 3),  # the LCCA's own budget (conf/demos_for_task)
+    (["task=lcca", "demos=none"], 0, 20_000, 0),  # no demonstrations means none, whatever the target
+    (["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"], 50, 40_000, 0),  # the command line still wins
 ])
-def test_the_demonstration_budget_follows_the_target(overrides, episodes, capacity):
+def test_the_demonstration_budget_follows_the_target(overrides, episodes, capacity, takeover_rounds):
     from hydra import compose, initialize_config_dir
 
     from cathsim_dmc.paths import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         demos = compose(config_name="train", overrides=overrides).demos
-    assert (demos.episodes, demos.capacity) == (episodes, capacity)
+    assert (demos.episodes, demos.capacity, demos.takeover_rounds) == (episodes, capacity, takeover_rounds)
 
 
 def test_a_warm_start_lets_the_actor_act_and_trains_only_the_critic(env):
