@@ -5,8 +5,8 @@
 
 `run` trains each (variant, task, seed) that has no finished run under --root (a run is
 finished when its eval/metrics.json exists and it took --steps; an interrupted one, or a
-finished one given a larger --steps, is resumed from its last checkpoint), one after the other. Every run evaluates its policy deterministically every
---eval-every steps on 10 episodes (evaluations.jsonl; the best one is kept as best.zip)
+finished one given a larger --steps, is resumed from its last checkpoint), one after the
+other. Every run evaluates its policy deterministically every --eval-every steps on 10 episodes (evaluations.jsonl; the best one is kept as best.zip)
 and ends with a 50-episode report of best.zip on seeds it was not chosen on.
 `report` reads every run under --root and writes, per (variant, task): steps and wall
 time to the first periodic evaluation at >= 90% success, and the final success over 50
@@ -66,7 +66,8 @@ VARIANTS = {
                              "demos.warm_start_steps=2000"], 20_000),
     # Today's recipe (the unfiltered cloning term) with three rounds of takeover
     # demonstrations: the expert finishes from where the pre-trained actor has taken the
-    # wire, which on the LCCA is often towards a wrong branch.
+    # wire, which on the LCCA is often towards a wrong branch. Since session 15 the LCCA's
+    # default (conf/demos_for_task/expert_lcca.yaml), so demos_internal's LCCA runs have it too.
     "demos_takeover_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
                                        "demos.takeover_rounds=3", "demos.takeover_episodes=20",
                                        "demos.takeover_max_student_steps=150"], 20_000),
