@@ -6,8 +6,8 @@
 `run` trains each (variant, task, seed) that has no finished run under --root (a run is
 finished when its eval/metrics.json exists and it took --steps; an interrupted one, or a
 finished one given a larger --steps, is resumed from its last checkpoint), one after the
-other. Every run evaluates its policy deterministically every --eval-every steps on 10 episodes (evaluations.jsonl; the best one is kept as best.zip)
-and ends with a 50-episode report of best.zip on seeds it was not chosen on.
+other. Every run evaluates its policy deterministically every --eval-every steps on 10
+episodes (evaluations.jsonl; the best one is kept as best.zip) and ends with a 50-episode report of best.zip on seeds it was not chosen on.
 `report` reads every run under --root and writes, per (variant, task): steps and wall
 time to the first periodic evaluation at >= 90% success, and the final success over 50
 episodes, for each seed and as the median over seeds; and a plot of the curves.

@@ -347,7 +347,7 @@ class SACfD(SAC):
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
         # During a warm start, or a refill after a resume, the actor acts from the first
         # step: SB3 would take uniform random actions until learning_starts.
-        actor_acts = self.warm_start_steps or getattr(self, "_actor_refills", False)
+        actor_acts = self.warm_start_steps or self._actor_refills
         return super()._sample_action(0 if actor_acts else learning_starts, action_noise, n_envs)
 
     def refill_before_training(self, steps: int) -> None:

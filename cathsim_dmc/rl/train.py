@@ -305,28 +305,27 @@ def _callbacks():
                 return run_episodes(self.env, lambda observation, env: act(observation), count, seed,
                                     show_progress=False, log_episodes=False)
 
+            def mean(summaries, key):
+                return float(np.mean([float(s[key]) for s in summaries]))
+
             summaries = episodes(self.episodes, self.seed)
-            returns = [s["return"] for s in summaries]
-            successes = [float(s["success"]) for s in summaries]
-            lengths = [s["steps"] for s in summaries]
-            self.logger.record("eval/mean_return", float(np.mean(returns)))
-            self.logger.record("eval/success_rate", float(np.mean(successes)))
-            self.logger.record("eval/mean_episode_length", float(np.mean(lengths)))
+            success_rate = mean(summaries, "success")
+            self.logger.record("eval/mean_return", mean(summaries, "return"))
+            self.logger.record("eval/success_rate", success_rate)
+            self.logger.record("eval/mean_episode_length", mean(summaries, "steps"))
             if self.run_dir is not None:
-                record = {"step": int(self.num_timesteps), "success_rate": float(np.mean(successes)),
-                          "mean_return": float(np.mean(returns)), "mean_episode_length": float(np.mean(lengths)),
+                record = {"step": int(self.num_timesteps), "success_rate": success_rate,
+                          "mean_return": mean(summaries, "return"), "mean_episode_length": mean(summaries, "steps"),
                           "episodes": self.episodes}
                 selection = summaries
                 best = best_record(self.run_dir)
-                if self.confirm_episodes and (best is None or np.mean(successes) >= best["success_rate"]):
+                if self.confirm_episodes and (best is None or success_rate >= best["success_rate"]):
                     extra = episodes(self.confirm_episodes, self.confirm_seed)
-                    record["confirm_success_rate"] = float(np.mean([s["success"] for s in extra]))
+                    record["confirm_success_rate"] = mean(extra, "success")
                     selection = summaries + extra
-                    self.logger.record("eval/confirmed_success_rate",
-                                       float(np.mean([s["success"] for s in selection])))
-                keep_if_best(self.model, self.run_dir, self.num_timesteps,
-                             float(np.mean([s["success"] for s in selection])),
-                             float(np.mean([s["return"] for s in selection])), episodes=len(selection))
+                    self.logger.record("eval/confirmed_success_rate", mean(selection, "success"))
+                keep_if_best(self.model, self.run_dir, self.num_timesteps, mean(selection, "success"),
+                             mean(selection, "return"), episodes=len(selection))
                 record["wall_s"] = round(time.time() - self._start_wall, 1)
                 with open(self.run_dir / EVALUATIONS, "a") as f:
                     f.write(json.dumps(record) + "\n")
