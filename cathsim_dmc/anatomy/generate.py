@@ -34,7 +34,7 @@ from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANG
 from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE, params_record
 
 # Bump when the pipeline's output for the same parameters changes (invalidates caches).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 CACHE_ENV = "CATHSIM_DMC_CACHE"
 
 _DIAMETER_FIELDS = ("ascending_diameter_m", "proximal_arch_diameter_m", "distal_arch_diameter_m",
