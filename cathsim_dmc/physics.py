@@ -227,6 +227,35 @@ class ConstraintSensingPhysics(mjcf.Physics):
     """
 
     after_constraint_solve = None  # callable(physics), or None for the plain step
+    _binding_writes = 0  # how many binding writes have marked this physics dirty
+    _writes_before_last_step = -1
+
+    def mark_as_dirty(self):
+        self._binding_writes += 1
+        super().mark_as_dirty()
+
+    def step(self, nstep: int = 1) -> None:
+        super().step(nstep)
+        self._writes_before_last_step = self._binding_writes
+
+    def complete_stepped_state(self) -> bool:
+        """Computes the acceleration stage of the state the last step left; True if it did.
+
+        dm_control's legacy step ends with ``mj_step1``: positions, contacts and velocities
+        of the new state are current, accelerations and constraint forces are not. The
+        rest of ``mj_forward`` (`forward_from_velocity_stage`) makes the whole state
+        current, the same data bit for bit. It also clears the dirty flag that a binding
+        write before the step (the drive's ``ctrl``, every control step) leaves behind:
+        the flag outlives the step that consumed the write, and the next binding read
+        would otherwise run a full ``mj_forward``, collision included. Nothing happens
+        (False) after a non-legacy step or if anything was written through a binding
+        since the step: then the full forward stays due, as before.
+        """
+        if not self.legacy_step or self._binding_writes != self._writes_before_last_step:
+            return False
+        forward_from_velocity_stage(self)
+        self._dirty = False
+        return True
 
     def _step_with_up_to_date_position_velocity(self, nstep: int = 1) -> None:
         callback = self.after_constraint_solve

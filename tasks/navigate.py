@@ -196,7 +196,9 @@ class Navigate(composer.Task):
         self._diverged = False
         self._contacts = None  # cached per control step
         self._stepped_state = None  # (qpos, qvel) as the last control step left them
+        self._stepped_state_complete = False  # its acceleration stage computed in after_step
         self._wall_force = None  # cs_physics.WallForceTotal for this physics (set per episode)
+        self._wire_point_rows = None  # (body, geom, site) rows of the wire's points (set per episode)
         self._tip_location = None  # the tip on the centerline tree, cached per control step
         # Sum, count and largest of the physics-step totals of one control step.
         self._force_sum_n, self._force_samples, self._force_peak_n = 0.0, 0, 0.0
@@ -317,6 +319,11 @@ class Navigate(composer.Task):
         self._vessel_mask = np.zeros(physics.model.ngeom, dtype=bool)
         self._vessel_mask[self._aorta.wall_geom_ids(physics)] = True
         self._wall_force = cs_physics.WallForceTotal(self._wire_mask, self._vessel_mask)
+        # Rows of data.xpos / data.site_xpos for `wire_points_m`, read every control step:
+        # indexing the arrays directly costs a fraction of a dm_control binding.
+        self._wire_point_rows = (physics.bind(self._guidewire.segments).element_id,
+                                 physics.bind(self._guidewire.geoms).element_id,
+                                 physics.bind(self._guidewire.tip_site).element_id)
         self._stepped_state = None
         # composer runs the entities' hooks after this one; the start distances need the
         # wire in its rest shape (its hook is idempotent) and positions computed from it.
@@ -352,6 +359,10 @@ class Navigate(composer.Task):
         self._force_sum_n, self._force_samples, self._force_peak_n = 0.0, 0, 0.0
 
     def after_step(self, physics, random_state):
+        # Accelerations and constraint forces of the new state, once (the step info's
+        # contact forces need them; see ConstraintSensingPhysics.complete_stepped_state).
+        self._stepped_state_complete = (isinstance(physics, cs_physics.ConstraintSensingPhysics)
+                                        and physics.complete_stepped_state())
         # dm_control's legacy step (composer's default) ends with mj_step1: the position
         # and velocity stages of this state are current, so `contact_forces` needs only
         # the rest of mj_forward, as long as the state is still this one.
@@ -407,8 +418,13 @@ class Navigate(composer.Task):
 
     def wire_points_m(self, physics) -> np.ndarray:
         """(N, 3) points along the wire: segment ends, segment centres and the tip."""
-        return np.vstack([physics.bind(self._guidewire.segments).xpos, physics.bind(self._guidewire.geoms).xpos,
-                          physics.bind(self._guidewire.tip_site).xpos])
+        rows = self._wire_point_rows
+        if rows is None or physics.is_dirty:  # no episode yet, or a write not yet forwarded: bind forwards it
+            return np.vstack([physics.bind(self._guidewire.segments).xpos, physics.bind(self._guidewire.geoms).xpos,
+                              physics.bind(self._guidewire.tip_site).xpos])
+        bodies, geoms, tip = rows
+        data = physics.data
+        return np.vstack([data.xpos[bodies], data.geom_xpos[geoms], data.site_xpos[tip]])
 
     @property
     def containment(self) -> Containment:
@@ -502,7 +518,7 @@ class Navigate(composer.Task):
             stepped = self._stepped_state
             in_stepped_state = (stepped is not None and np.array_equal(stepped[0], physics.data.qpos)
                                 and np.array_equal(stepped[1], physics.data.qvel))
-            if in_stepped_state:
+            if in_stepped_state and not self._stepped_state_complete:
                 cs_physics.forward_from_velocity_stage(physics)
             self._contacts = cs_physics.wire_contacts(physics, self._wire_mask, recompute=not in_stepped_state,
                                                       is_vessel_geom=self._vessel_mask)

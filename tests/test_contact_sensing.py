@@ -103,3 +103,56 @@ def test_mean_and_end_of_step_force_agree_on_average_at_rest(env):
     assert np.mean(means) > 0.01
     assert np.mean(means) == pytest.approx(np.mean(ends), rel=0.15)
     assert np.std(np.diff(means)) < 0.5 * np.std(np.diff(ends))
+
+
+def _expert_run(env, complete_stepped_state=True):
+    """(state after each step, infos, observations) of the expert run, with or without the
+    cheap completion of each stepped state (without it the binding read forwards in full).
+    The state includes the acceleration stage (qacc, actuator forces), which the completion
+    computes."""
+    observation, _ = env.reset(seed=0)
+    if not complete_stepped_state:
+        env.physics.complete_stepped_state = lambda: None
+    policy = make_policy("expert", seed=0)
+    qpos, infos, observations = [], [], []
+    for _ in range(INTO_THE_ARCH):
+        observation, _, _, _, info = env.step(policy(observation, env))
+        data = env.physics.data
+        qpos.append(np.concatenate([data.qpos, data.qvel, data.qacc, data.actuator_force]))
+        infos.append(info)
+        observations.append(observation)
+    if not complete_stepped_state:
+        del env.physics.complete_stepped_state
+    return qpos, infos, observations
+
+
+def test_completing_the_stepped_state_changes_nothing_but_its_cost(env):
+    qpos_cheap, infos_cheap, obs_cheap = _expert_run(env)
+    # The completion ran: nothing left for a binding read to forward.
+    assert not env.physics.is_dirty
+    qpos_full, infos_full, obs_full = _expert_run(env, complete_stepped_state=False)
+    np.testing.assert_array_equal(qpos_cheap, qpos_full)
+    for cheap, full in zip(infos_cheap, infos_full):
+        for key in ("contact_force_n", "mean_contact_force_n", "drive_force_n", "slack_m", "tip_position_m"):
+            np.testing.assert_array_equal(cheap[key], full[key], err_msg=key)
+    for cheap, full in zip(obs_cheap, obs_full):
+        assert cheap.keys() == full.keys()
+        for key in cheap:
+            np.testing.assert_array_equal(cheap[key], full[key], err_msg=key)
+
+
+def test_a_write_after_the_step_keeps_the_full_forward_due(env):
+    env.reset(seed=0)
+    physics = env.physics
+    physics.bind(env.task.robot.actuators).ctrl = [1e-3, 0.0]
+    physics.step()
+    moved = physics.data.qpos.copy()
+    moved[0] += 1e-3
+    physics.bind(env.task.robot.joints[:1]).qpos = moved[:1]  # written after the step
+    physics.complete_stepped_state()
+    assert physics.is_dirty  # the next binding read forwards the written state in full
+    physics.forward()
+    physics.bind(env.task.robot.actuators).ctrl = [1e-3, 0.0]
+    physics.step()
+    physics.complete_stepped_state()
+    assert not physics.is_dirty
