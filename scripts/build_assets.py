@@ -12,6 +12,9 @@ tortuosity (path/chord of the arch and mean of the branches), triangle and hull
 counts, build time, folder size, the centerline length from the entry to
 each site and the arch's obliquity (the BCA-LSA ostia line's angle with the
 coronal plane, with the `arch_rotation_deg` that turned it).
+
+Each preset is meshed at its pinned lumen mesher version (`SHIPPED_MESHER_VERSIONS` in
+cathsim_dmc/anatomy/asset.py, which says why), any other at the current one.
 """
 
 import argparse
@@ -23,6 +26,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cathsim_dmc.anatomy import BRANCHES, PRESETS, build_asset  # noqa: E402
+from cathsim_dmc.anatomy.asset import SHIPPED_MESHER_VERSIONS  # noqa: E402
 
 FILES = ("meta.json", "visual.stl", "collision.npz")
 # Coordinates may differ in their last float32 bits between machines (the CPU's vectorised
@@ -102,7 +106,7 @@ def main(argv=None) -> int:
     print(f"{'name':<15} {'arch-type distance':<27} {'tort. arch/branch':<18} {'triangles':>9} {'hulls':>6} "
           f"{'build':>6} {'size':>8}")
     for name in names:
-        r = build_asset(PRESETS[name], root / name)
+        r = build_asset(PRESETS[name], root / name, mesher_version=SHIPPED_MESHER_VERSIONS.get(name))
         t = r.tortuosity
         dist = f"{r.arch_type_distance_m * 1e3:4.1f} mm = {r.arch_type_ratio:.2f} CCA (type {r.arch_type})"
         print(f"{name:<15} {dist:<27} {t['arch']:.3f} / {t['branches']:.4f}   {r.triangles:>9} {r.hulls:>6} "
@@ -111,7 +115,7 @@ def main(argv=None) -> int:
         extra = f"; max aortic diameter {r.max_aortic_diameter_m * 1e3:.1f} mm" if PRESETS[name].aneurysm_diameter_m else ""
         extra += (f"; obliquity (BCA-LSA ostia line from the coronal plane) {r.obliquity_deg:.1f} deg"
                   f" (arch_rotation_deg {PRESETS[name].arch_rotation_deg:g})")
-        print(f"{'':<15} entry->site {paths}{extra}; -> {r.path}")
+        print(f"{'':<15} entry->site {paths}{extra}; mesher version {r.mesher_version}; -> {r.path}")
         if args.check:
             same, largest = compare(args.out / name, r.path)
             if not same:

@@ -19,6 +19,8 @@ import trimesh
 from scipy import spatial
 
 from cathsim_dmc.anatomy import (BRANCHES, PRESETS, ArchParams, arch_type_of, build_arch, build_asset, load_asset)
+from cathsim_dmc.anatomy.asset import SHIPPED_MESHER_VERSIONS, recorded_mesher_version
+from cathsim_dmc.anatomy.lumen import MESHER_VERSION
 from cathsim_dmc.anatomy.sdf import signed_distance
 from cathsim_dmc.anatomy.triangles import triangle_quality
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, HullSet, cap_faces, validate_asset
@@ -322,10 +324,19 @@ def test_build_is_deterministic(tmp_path):
     assert load_asset(tmp_path / "a").name == "coarse"
 
 
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_asset_records_its_pinned_mesher_version(name):
+    """What scripts/build_assets.py builds a preset at is what its committed meta.json says
+    it was built at (no key: version 1), so a rebuild at the current mesher goes with
+    dropping the pin (and re-running the tables measured on it)."""
+    meta = json.loads((ASSETS / name / "meta.json").read_text())
+    assert recorded_mesher_version(meta) == SHIPPED_MESHER_VERSIONS.get(name, MESHER_VERSION)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_asset_rebuilds_byte_identical(name, tmp_path):
-    build_asset(PRESETS[name], tmp_path / name)
+    build_asset(PRESETS[name], tmp_path / name, mesher_version=SHIPPED_MESHER_VERSIONS.get(name))
     for fname in ("meta.json", "visual.stl", "collision.npz"):
         assert (tmp_path / name / fname).read_bytes() == (ASSETS / name / fname).read_bytes(), fname
 

@@ -1,7 +1,8 @@
 """Generated anatomy: parameter parsing, the on-demand cache and the random arch sampler.
 
-The fast tests build coarse arches (5 mm edges, 2 mm SDF grid, ~1 s each); the
-slow test builds and fully validates 20 randomly sampled arches at the shipped
+The fast tests build coarse arches (5 mm edges, 2 mm SDF grid, ~1 s each) and mesh
+one random arch at the shipped resolution with both lumen mesher versions (~15 s);
+the slow test builds and fully validates 20 randomly sampled arches at the shipped
 resolution (`pytest -m slow tests/test_anatomy_generate.py`).
 """
 
@@ -16,6 +17,7 @@ import pytest
 
 from cathsim_dmc.anatomy import (ARCH_TYPE_RATIO_RANGE, PRESETS, ArchParams, arch_params, build_arch, cache_root,
                                  generated_asset, load_asset, params_hash, sample_arch_params)
+from cathsim_dmc.anatomy.lumen import MESHER_VERSION
 from cathsim_dmc.model_check import validate_and_compile
 
 COARSE = dict(edge_length_m=0.005, sdf_spacing_m=0.002)
@@ -67,6 +69,7 @@ def test_generated_asset_is_built_once_then_cached(tmp_path, monkeypatch):
     assert folder == tmp_path / "aortas" / params_hash(params)
     asset = load_asset(folder)
     assert asset.name == "coarse" and ArchParams(**asset.params) == params
+    assert asset.meta["mesher_version"] == MESHER_VERSION, "the cache builds at the current mesher"
     stamps = {f.name: f.stat().st_mtime_ns for f in folder.iterdir()}
     # A mapping with the same values hits the same cache entry without rebuilding.
     again = generated_asset({"preset": "type1", "name": "coarse", **COARSE})
@@ -138,6 +141,90 @@ def test_sampler_distribution():
         sample_arch_params(0, type_weights=(1, 1))
     with pytest.raises(ValueError, match="size_scale"):
         sample_arch_params(0, size_scale=(1.2, 1.1))
+
+
+# Every branch's meshed lumen keeps at least this fraction of its nominal radius. A flat
+# triangle spanning 63 deg of a tube's circumference passes 0.85 of its radius from the
+# axis. Before the fix (mesher version 1) the 50 arches of that pool kept 0.25-0.91
+# (median 0.82), after it (version 2) 0.87-0.91 (median 0.90); a fine mesh of the same
+# SDF keeps 0.96-0.99.
+MIN_LUMEN_RATIO = 0.85
+
+
+def lumen_ratios(model, lumen) -> dict:
+    """branch -> (smallest distance from its centreline to the lumen wall over its nominal
+    radius, mm past the ostium where it is), from the ostium to one radius short of the
+    closed (rounded) end, every 0.5 mm."""
+    from cathsim_dmc.anatomy import BRANCHES
+    from cathsim_dmc.anatomy.sdf import unsigned_distance
+
+    wall = lumen.faces[~lumen.cap]
+    out = {}
+    for b in BRANCHES:
+        branch = model.branches[b]
+        u = branch.arclength
+        r_aorta = float(np.interp(model.branch_origin_s[b], model.aorta.arclength, model.aorta.radius))
+        tube = (u >= r_aorta) & (u <= u[-1] - branch.radius[-1])
+        ratio = unsigned_distance(lumen.vertices, wall, branch.points[tube]) / branch.radius[tube]
+        worst = int(np.argmin(ratio))
+        out[b] = (float(ratio[worst]), (u[tube][worst] - r_aorta) * 1e3)
+    return out
+
+
+@pytest.fixture(scope="module")
+def narrow_lcca_ratios():
+    """aorta=random's pool_seed=100 arch 42 meshed by `build_lumen` with mesher version 1 and
+    with its default (the current one; one SDF grid for both): {version: lumen_ratios}. Its
+    7.6 mm LCCA, meshed at 7 mm edges with version 1, kept a lumen radius of 1-2 mm (0.25 of
+    nominal) and the scripted expert stuck at its ostium."""
+    from cathsim_dmc.anatomy.lumen import build_lumen
+    from cathsim_dmc.anatomy.sdf import arch_sdf_grid
+
+    p = sample_arch_params(np.random.default_rng([100, 42]), name="random100-42")
+    assert p.edge_length_m == 0.007 and p.lcca_diameter_m < 0.0077
+    model = build_arch(p)
+    grid = arch_sdf_grid(model)
+    return {1: lumen_ratios(model, build_lumen(model, grid, mesher_version=1)),
+            MESHER_VERSION: lumen_ratios(model, build_lumen(model, grid))}
+
+
+def test_a_narrow_branch_keeps_its_lumen_at_the_shipped_resolution(narrow_lcca_ratios):
+    for b, (ratio, past_mm) in narrow_lcca_ratios[MESHER_VERSION].items():
+        assert ratio >= MIN_LUMEN_RATIO, f"{b}: lumen radius {ratio:.2f} of nominal {past_mm:.0f} mm in"
+
+
+def test_mesher_version_1_is_the_pinching_mesher(narrow_lcca_ratios):
+    """The version the shipped presets are pinned to (asset.SHIPPED_MESHER_VERSIONS) is the
+    old mesher: on the same model and grid it still pinches the LCCA that the current version
+    keeps open (v1 0.25, v2 0.92; BCA 0.90 and 0.92, LSA 0.78 and 0.90), and no branch is
+    narrower with the current version."""
+    from cathsim_dmc.anatomy.lumen import build_lumen
+
+    old, new = narrow_lcca_ratios[1], narrow_lcca_ratios[MESHER_VERSION]
+    print("\n" + "\n".join(f"{b}: v1 {old[b][0]:.2f}, v{MESHER_VERSION} {new[b][0]:.2f}" for b in old))
+    assert MESHER_VERSION > 1
+    assert old["lcca"][0] < 0.5 and new["lcca"][0] >= MIN_LUMEN_RATIO
+    for b in old:
+        assert new[b][0] >= old[b][0] - 0.01, b
+    with pytest.raises(ValueError, match="mesher_version=3 is not valid"):
+        build_lumen(None, mesher_version=3)
+
+
+def test_generated_assets_record_the_mesher_version(tmp_path):
+    """A build records the mesher version in meta.json from version 2 on (none: version 1,
+    as the shipped assets, whose bytes stay as they were), and the version changes the mesh."""
+    from cathsim_dmc.anatomy import build_asset
+    from cathsim_dmc.anatomy.asset import recorded_mesher_version
+
+    params = coarse()
+    old = build_asset(params, tmp_path / "v1", mesher_version=1)
+    new = build_asset(params, tmp_path / "new")
+    assert (old.mesher_version, new.mesher_version) == (1, MESHER_VERSION)
+    meta_old = json.loads((tmp_path / "v1" / "meta.json").read_text())
+    meta_new = json.loads((tmp_path / "new" / "meta.json").read_text())
+    assert "mesher_version" not in meta_old and meta_new["mesher_version"] == MESHER_VERSION
+    assert recorded_mesher_version(meta_old) == 1 and recorded_mesher_version(meta_new) == MESHER_VERSION
+    assert (tmp_path / "v1" / "visual.stl").read_bytes() != (tmp_path / "new" / "visual.stl").read_bytes()
 
 
 def test_sampled_models_have_their_class():

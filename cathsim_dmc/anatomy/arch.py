@@ -196,8 +196,9 @@ class ArchParams:
                 raise ValueError(f"ArchParams.{name} must be > 0, got {getattr(self, name)!r}.")
         if self.site_depth_m >= min(self.branch_length_m(b) for b in BRANCHES):
             raise ValueError("ArchParams.site_depth_m must be shorter than every branch length.")
-        # Narrow branches are refined by their fold angle (max_dihedral_deg), so the
-        # base edge only has to stay below the narrowest branch diameter.
+        # Narrow branches are refined by their fold angle (max_dihedral_deg) and, from mesher
+        # version 2 on, where a triangle cuts into them (lumen.MAX_SAG_FRACTION), so the base
+        # edge only has to stay below the narrowest branch diameter.
         narrowest = min(self.branch_diameter_m(b) for b in BRANCHES)
         if self.edge_length_m > narrowest:
             raise ValueError(f"ArchParams.edge_length_m={self.edge_length_m} is too coarse for a "

@@ -11,7 +11,9 @@ An asset folder (format_version 1) holds:
   collision piece covers it), ``counts``, ``ostia`` (where each branch leaves
   the aorta; the validation samples densely around them), and for generated
   arches ``arch_type`` (measured class), ``tortuosity`` (path/chord of the arch
-  and of each branch's first 3 cm) and ``max_aortic_diameter_m``.
+  and of each branch's first 3 cm), ``max_aortic_diameter_m`` and, when built
+  with a mesher later than version 1, ``mesher_version`` (`lumen` module
+  docstring; absent means 1, so the assets built before it keep their bytes).
 - ``visual.stl``: binary STL of the closed lumen surface, metres, outward normals.
 - ``collision.npz``: ``vertices`` float32 (M, 3) and ``hull_offsets`` int32
   (H + 1,); hull i is ``vertices[hull_offsets[i]:hull_offsets[i + 1]]``, a
@@ -329,6 +331,7 @@ class BuildReport:
     tortuosity: Dict[str, float] = dataclasses.field(default_factory=dict)
     max_aortic_diameter_m: float = 0.0
     obliquity_deg: float = 0.0  # BCA-LSA ostia line from the coronal plane (ArchModel.obliquity_deg)
+    mesher_version: int = 1     # lumen.build_lumen's
 
     @property
     def arch_type_ratio(self) -> float:
@@ -350,16 +353,41 @@ def params_record(params) -> dict:
     return record
 
 
-def build_asset(params, folder) -> BuildReport:
-    """Generate the arch described by `params` and write it to `folder`."""
+# meta.json records `mesher_version` only from version 2 on: an asset without it was built
+# with version 1 (every asset made before the key existed, the shipped ones included).
+UNRECORDED_MESHER_VERSION = 1
+
+# The shipped presets are built with the version-1 mesher (scripts/build_assets.py), which
+# pinches narrow branches on some arches (lumen module docstring; the shipped ones keep
+# 0.76-0.87 of their nominal branch radius, scripts/lumen_radius.py), because their expert,
+# containment and learning tables were measured on the version-1 meshes: rebuilding them
+# would invalidate those tables. When the tables are re-run, rebuild these assets at
+# lumen.MESHER_VERSION (drop them from here) in the same change. A preset not listed is
+# built at the current version.
+SHIPPED_MESHER_VERSIONS = {name: 1 for name in ("type1", "type2", "type3", "aneurysm", "low_tortuosity", "bovine",
+                                                "type1_oblique", "type2_oblique", "type3_oblique")}
+
+
+def recorded_mesher_version(meta: Mapping) -> int:
+    """The lumen mesher version an asset's meta.json says it was built with."""
+    return int(meta.get("mesher_version", UNRECORDED_MESHER_VERSION))
+
+
+def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildReport:
+    """Generate the arch described by `params` and write it to `folder`.
+
+    `mesher_version`: `lumen.build_lumen`'s; None is the current `lumen.MESHER_VERSION`
+    (the shipped presets pin theirs: `SHIPPED_MESHER_VERSIONS`).
+    """
     from cathsim_dmc.anatomy import arch as arch_lib
-    from cathsim_dmc.anatomy.lumen import build_lumen
+    from cathsim_dmc.anatomy.lumen import MESHER_VERSION, build_lumen
     from cathsim_dmc.anatomy.sdf import unsigned_distance
     from cathsim_dmc.anatomy.wall import extrude_prisms
 
+    mesher_version = MESHER_VERSION if mesher_version is None else int(mesher_version)
     t0 = time.perf_counter()
     model = arch_lib.build_arch(params)
-    lumen = build_lumen(model)
+    lumen = build_lumen(model, mesher_version=mesher_version)
     prisms = extrude_prisms(lumen, params.wall_thickness_m)
     centerlines, lengths = {}, {}
     wall = lumen.faces[~lumen.cap]
@@ -405,10 +433,11 @@ def build_asset(params, folder) -> BuildReport:
                **({"arch_obliquity_deg": round(model.obliquity_deg, 3)} if p.arch_rotation_deg else {}),
                "ostia": {b: json_rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
                "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
-               "max_aortic_diameter_m": json_rounded(max_diameter)})
+               "max_aortic_diameter_m": json_rounded(max_diameter),
+               **({"mesher_version": mesher_version} if mesher_version != UNRECORDED_MESHER_VERSION else {})})
     return BuildReport(
         path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
         seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,
         cca_diameter_m=model.cca_diameter_m, arch_type=model.arch_type_measured,
         path_length_m=lengths, tortuosity=tortuosity, max_aortic_diameter_m=max_diameter,
-        obliquity_deg=model.obliquity_deg)
+        obliquity_deg=model.obliquity_deg, mesher_version=mesher_version)

@@ -33,8 +33,10 @@ from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANG
                                       ArchParams, build_arch, normalize_arch_type)
 from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE, params_record
 
-# Bump when the pipeline's output for the same parameters changes (invalidates caches).
-GENERATOR_VERSION = 1
+# Bump when the pipeline's output for the same parameters changes (invalidates caches),
+# e.g. with lumen.MESHER_VERSION, which generated arches are built at. 2: mesher version 2
+# (narrow branches no longer pinched); the version-1 arches cached before stay unused.
+GENERATOR_VERSION = 2
 CACHE_ENV = "CATHSIM_DMC_CACHE"
 
 _DIAMETER_FIELDS = ("ascending_diameter_m", "proximal_arch_diameter_m", "distal_arch_diameter_m",
