@@ -9,6 +9,7 @@ measured numbers.
 """
 
 import dataclasses
+import importlib.util
 import json
 import pathlib
 import shutil
@@ -335,10 +336,15 @@ def test_shipped_asset_records_its_pinned_mesher_version(name):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
-def test_shipped_asset_rebuilds_byte_identical(name, tmp_path):
+def test_shipped_asset_rebuilds_as_shipped(name, tmp_path):
+    """Byte for byte, or (as `scripts/build_assets.py --check` accepts) with coordinates
+    apart only in their last float32 bits, which vary between machines."""
+    spec = importlib.util.spec_from_file_location("build_assets", ASSETS.parent / "scripts" / "build_assets.py")
+    build_assets = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build_assets)
     build_asset(PRESETS[name], tmp_path / name, mesher_version=SHIPPED_MESHER_VERSIONS.get(name))
-    for fname in ("meta.json", "visual.stl", "collision.npz"):
-        assert (tmp_path / name / fname).read_bytes() == (ASSETS / name / fname).read_bytes(), fname
+    same, largest_m = build_assets.compare(ASSETS / name, tmp_path / name)
+    assert same, f"{name}: rebuilt asset differs (largest coordinate difference {largest_m} m)"
 
 
 def test_label_must_match_the_measured_arch_type(tmp_path):
