@@ -15,8 +15,9 @@ interventionalist does with an angled wire:
   several back-offs without progress, measure progress afresh from where the tip is.
 * **end game**: at the target's depth but outside the 4 mm zone, the tip rests on the
   branch wall (its bend reaches across most of the lumen). Turn the bend towards the
-  branch axis while stroking the wire one lumen radius past the target and back; every
-  few strokes, retreat out of the branch and enter again.
+  branch axis while stroking the wire past the target and back, one, two, then three
+  lumen radii (each deeper stroke leaves the wire in another posture) in quarter-radius
+  steps; then retreat out of the branch and enter again.
 
 Past the other ostia the look-ahead follows the arch's inner curve, which keeps the bend
 away from the branches on the outer curve; at the target ostium the centerline turns
@@ -58,6 +59,10 @@ class CenterlineExpert:
         self.axis_gain = 0.5  # of the full correction per step: a gentle turn the tip can follow
         self.strokes_per_retreat = 3
         self.retreat_radii = 2.0
+        # End-game strokes: the k-th goes k * stroke_radii lumen radii past the target and
+        # back, at most stroke_step_radii lumen radii per control step.
+        self.stroke_radii = 1.0
+        self.stroke_step_radii = 0.25
         self.backoffs_before_reset = 8
         self._episode_key = None
 
@@ -71,6 +76,7 @@ class CenterlineExpert:
         self._at_depth = 0
         self._backoffs = 0
         self._retreat_to = None
+        self._schedule = None
         # The end game's geometry: the target, the branch axis arriving at it, its radius.
         line = self._line
         self._target = line.at(line.length_m)
@@ -127,6 +133,10 @@ class CenterlineExpert:
             if s > self._retreat_to:
                 return np.array([-1.0, rotation], dtype=np.float32)
             self._retreat_to = None
+            # Progress counts afresh from here: the best depth so far was a stroke past the
+            # target, which re-entering the branch cannot beat, so the stall rule would back
+            # the wire out of the branch (and often out into the arch).
+            self._best_s, self._since_progress, self._backoffs = s, 0, 0
         if remaining < self._max_insertion_step:
             self._at_depth += 1
         else:
@@ -147,22 +157,42 @@ class CenterlineExpert:
         """At the target's depth but not within reach: the tip rests on the branch wall.
 
         The tip's own bend holds it off the axis, so turn the bend towards the axis (at
-        part gain, which the tip can follow) while stroking the wire one lumen radius past
-        the target and back, so the tip slides across the target's cross-section. Every
-        few strokes without success, retreat out of the branch and enter again.
+        part gain, which the tip can follow) while stroking the wire past the target and
+        back (`_stroke_schedule`), so the tip slides across the target's cross-section.
+        After the strokes without success, retreat out of the branch and enter again.
         """
         to_axis = -component_across(tip - self._target, self._target_axis)
         angle = signed_angle_rad(bend, component_across(to_axis, shaft), shaft)
         rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
 
-        radius = self._target_radius
-        half = max(2, int(np.ceil(radius / self._max_insertion_step)))
+        schedule = self._stroke_schedule()
         phase = self._at_depth - self.settle_steps - 1
-        stroke, k = divmod(phase, 2 * half)
-        past = radius * (k / half if k <= half else (2 * half - k) / half)
-        if stroke >= self.strokes_per_retreat:
-            self._retreat_to = self._line.length_m - self.retreat_radii * radius
+        if phase >= len(schedule):
+            self._retreat_to = self._line.length_m - self.retreat_radii * self._target_radius
             self._at_depth = 0
             return np.array([-1.0, rotation], dtype=np.float32)
+        past = schedule[phase]
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))
         return np.array([insertion, rotation], dtype=np.float32)
+
+    def _stroke_schedule(self):
+        """How far past the target the end game pushes the wire at each of its steps.
+
+        Stroke k (1, 2, ...) goes k lumen radii past the target and back: each deeper
+        stroke puts more of the wire into the branch, so the tip comes back through the
+        target's depth in another posture (a shaft lying further along the branch, which
+        changes how far the bend holds the tip off the axis). The steps are a quarter
+        radius (about 1.4 mm in a BCA) rather than the full 4 mm a control step allows:
+        success is checked once per control step, and a tip that passes the target's
+        depth 4-5 mm off the axis is inside the 4 mm zone only along a chord a few
+        millimetres long, which a full-speed stroke can step over.
+        """
+        if self._schedule is None:
+            self._schedule = []
+            for k in range(1, self.strokes_per_retreat + 1):
+                amplitude = k * self.stroke_radii * self._target_radius
+                step = min(self._max_insertion_step, self.stroke_step_radii * self._target_radius)
+                half = max(2, int(np.ceil(amplitude / step)))
+                self._schedule += [amplitude * j / half for j in range(half + 1)]
+                self._schedule += [amplitude * (half - j) / half for j in range(1, half)]
+        return self._schedule
