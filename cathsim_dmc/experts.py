@@ -183,9 +183,9 @@ class CenterlineExpert:
         target's depth in another posture (a shaft lying further along the branch, which
         changes how far the bend holds the tip off the axis). The steps are a quarter
         radius (about 1.4 mm in a BCA) rather than the full 4 mm a control step allows:
-        success is checked once per control step, and a tip that passes the target's
-        depth 4-5 mm off the axis is inside the 4 mm zone only along a chord a few
-        millimetres long, which a full-speed stroke can step over.
+        success is checked once per control step, and a tip that passes the target d mm
+        off the axis (d just under 4) is inside the 4 mm zone only along a chord of
+        2 * sqrt(16 - d^2) mm (2.8 mm at 3.75 mm off), which a full-speed stroke can step over.
         """
         if self._schedule is None:
             self._schedule = []
