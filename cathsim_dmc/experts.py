@@ -76,7 +76,6 @@ class CenterlineExpert:
         self._at_depth = 0
         self._backoffs = 0
         self._retreat_to = None
-        self._schedule = None
         # The end game's geometry: the target, the branch axis arriving at it, its radius.
         line = self._line
         self._target = line.at(line.length_m)
@@ -85,6 +84,7 @@ class CenterlineExpert:
         self._target_axis = axis / np.linalg.norm(axis)
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
+        self._schedule = self._stroke_schedule()
 
     def __call__(self, observation, env) -> np.ndarray:
         task, physics = env.task, env.physics
@@ -165,7 +165,7 @@ class CenterlineExpert:
         angle = signed_angle_rad(bend, component_across(to_axis, shaft), shaft)
         rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
 
-        schedule = self._stroke_schedule()
+        schedule = self._schedule
         phase = self._at_depth - self.settle_steps - 1
         if phase >= len(schedule):
             self._retreat_to = self._line.length_m - self.retreat_radii * self._target_radius
@@ -176,7 +176,7 @@ class CenterlineExpert:
         return np.array([insertion, rotation], dtype=np.float32)
 
     def _stroke_schedule(self):
-        """How far past the target the end game pushes the wire at each of its steps.
+        """How far past the target the end game pushes the wire at each of its steps (built at reset).
 
         Stroke k (1, 2, ...) goes k lumen radii past the target and back: each deeper
         stroke puts more of the wire into the branch, so the tip comes back through the
@@ -187,12 +187,11 @@ class CenterlineExpert:
         off the axis (d just under 4) is inside the 4 mm zone only along a chord of
         2 * sqrt(16 - d^2) mm (2.8 mm at 3.75 mm off), which a full-speed stroke can step over.
         """
-        if self._schedule is None:
-            self._schedule = []
-            for k in range(1, self.strokes_per_retreat + 1):
-                amplitude = k * self.stroke_radii * self._target_radius
-                step = min(self._max_insertion_step, self.stroke_step_radii * self._target_radius)
-                half = max(2, int(np.ceil(amplitude / step)))
-                self._schedule += [amplitude * j / half for j in range(half + 1)]
-                self._schedule += [amplitude * (half - j) / half for j in range(1, half)]
-        return self._schedule
+        step = min(self._max_insertion_step, self.stroke_step_radii * self._target_radius)
+        schedule = []
+        for k in range(1, self.strokes_per_retreat + 1):
+            amplitude = k * self.stroke_radii * self._target_radius
+            half = max(2, int(np.ceil(amplitude / step)))
+            schedule += [amplitude * j / half for j in range(half + 1)]
+            schedule += [amplitude * (half - j) / half for j in range(1, half)]
+        return schedule
