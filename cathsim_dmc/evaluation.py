@@ -25,11 +25,13 @@ METRICS_MD = "metrics.md"
 VIDEO_FORMATS = ("gif", "mp4")
 
 
-def check_report_options(episodes: int, video_format: str = "gif") -> None:
+def check_report_options(episodes: int, video_format: str = "gif", video_size: int = 240) -> None:
     """ValueError for settings `evaluate_policy` cannot honour: checked before any work."""
     from cathsim_dmc.checks import check_number
+    from cathsim_dmc.observables import check_render_size
 
     check_number("episodes", episodes, 1, whole=True)
+    check_render_size("video_size", video_size)
     if video_format not in VIDEO_FORMATS:
         raise ValueError(f"video_format={video_format!r}; choose one of {list(VIDEO_FORMATS)}")
 
@@ -149,7 +151,7 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     """
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
-    check_report_options(episodes, video_format)
+    check_report_options(episodes, video_format, video_size)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     task = env.task

@@ -31,8 +31,10 @@ class CathSimEnv(gymnasium.Env):
 
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; choose None or 'rgb_array'")
+        from cathsim_dmc.observables import check_render_size
+
         self.render_mode = render_mode
-        self._render_size = int(render_size)
+        self._render_size = check_render_size("render_size", render_size)
         self._cameras = None
         self._env = tasks.load(task, aorta, obs=obs, **kwargs)
         self.task_name, self.aorta_name, self.obs_preset = task, aorta, obs

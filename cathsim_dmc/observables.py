@@ -91,6 +91,8 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
     if overrides:
         settings = ObservationSettings(**{**settings.__dict__, **overrides})
     check_number("image_size", settings.image_size, 1, whole=True)  # 0 divides by zero in the renderer
+    if settings.renderer == "gl":
+        check_render_size("image_size", settings.image_size)
     if settings.style not in IMAGE_STYLES:
         raise ValueError(f"image style={settings.style!r}; choose one of {IMAGE_STYLES}")
     if settings.renderer not in RENDERERS:
@@ -127,6 +129,20 @@ _MASK_OPTION = _scene_option([geom_groups.WIRE])
 _BACKGROUND_OPTION = _scene_option([0, geom_groups.VISUAL])
 
 
+# The compiled models keep MuJoCo's default offscreen framebuffer (640 x 480 pixels), and
+# every camera image here is square, so its side can be at most the framebuffer's height.
+MAX_RENDER_PX = 480
+
+
+def check_render_size(name: str, value) -> int:
+    """`value` as a square image side MuJoCo can render (1 to MAX_RENDER_PX pixels), or a
+    ValueError naming the parameter."""
+    size = check_number(name, value, 1, whole=True)
+    if size > MAX_RENDER_PX:
+        raise ValueError(f"{name}={value!r} is larger than the offscreen framebuffer; choose 1 to {MAX_RENDER_PX} pixels")
+    return size
+
+
 class CameraCache:
     """dm_control Cameras built once per compiled model and reused.
 
@@ -144,6 +160,7 @@ class CameraCache:
             self._model = physics.model.ptr
         key = (camera, pixels)
         if key not in self._cameras:
+            check_render_size("image size", pixels)  # else dm_control's error surfaces as a GL failure
             from dm_control.mujoco.engine import Camera
 
             try:

@@ -38,6 +38,8 @@ CLI_CASES = [
     ("eval", ["policy=xyz"], "forward", True),
     ("eval", ["policy=/no/such/checkpoint.zip"], "checkpoint", True),
     ("eval", ["video_format=avi"], "mp4", True),
+    # used to run the episode, then blame a missing OpenGL backend for the framebuffer's size
+    ("eval", ["video_size=640"], "video_size=640 is larger than the offscreen framebuffer; choose 1 to 480", True),
     ("eval", ["episodes=abc"], "episodes='abc'", True),
     ("eval", ["episodes=0"], "episodes=0", True),  # used to leave an empty trajectories.npz
     ("eval", ["episodes=2.5"], "episodes=2.5", True),
@@ -145,6 +147,12 @@ def _load(**kwargs):
     return lambda tmp_path: tasks.load("bca", "type1", **kwargs)
 
 
+def _gym_env(**kwargs):
+    from cathsim_dmc.gym import CathSimEnv
+
+    return lambda tmp_path: CathSimEnv(**kwargs)
+
+
 def _step_before_reset(tmp_path):
     from cathsim_dmc.gym import CathSimEnv
 
@@ -196,6 +204,10 @@ def _train(algo=None, trainer=None):
 # (id, call with the test's tmp_path, exception type, text the message must contain)
 API_CASES = [
     ("tasks.load(image_size=0)", _load(image_size=0), ValueError, "image_size=0"),
+    ("tasks.load(image_size=512, renderer='gl')", _load(obs="pixels", image_size=512, renderer="gl"), ValueError,
+     "image_size=512 is larger than the offscreen framebuffer"),
+    ("CathSimEnv(render_size=960)", _gym_env(render_mode="rgb_array", render_size=960), ValueError,
+     "render_size=960"),
     ("tasks.load(delta_m=-1)", _load(delta_m=-1), ValueError, "delta_m=-1"),
     ("tasks.load(max_steps=0)", _load(max_steps=0), ValueError, "max_steps=0"),
     ("tasks.load(success_reward=nan)", _load(success_reward=float("nan")), ValueError, "success_reward=nan"),

@@ -22,7 +22,7 @@ def evaluate(cfg) -> dict:
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.policies import CheckpointPolicy, make_policy
 
-    check_report_options(cfg.episodes, cfg.video_format)
+    check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)
     seed = check_number("seed", cfg.seed, 0, whole=True)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     policy = make_policy(str(cfg.policy), seed=seed)
