@@ -336,3 +336,40 @@ def test_a_warm_start_lets_the_actor_act_and_trains_only_the_critic(env):
     with pytest.raises(ValueError, match="warm_start_steps=-1"):
         build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None, dict(share=0.5, capacity=1000,
                                                                          warm_start_steps=-1))
+
+
+def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
+    """trainer.total_timesteps only says where a run stops: nothing in training depends on
+    it (no schedule over the budget), so a short run's evaluations and weights are the
+    first part of a long run's, and its best.zip is the long run's wherever that came early
+    (the reason the default budget could be cut to what the results needed)."""
+    import torch
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.rl import train as training
+    from cathsim_dmc.rl.demos import SACfD
+
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        cfg = compose("train", overrides=["obs=internal", "demos=none"])
+    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16,
+                policy_kwargs={"net_arch": [32, 32]})
+    runs = {}
+    for total in (40, 80):
+        trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=total, eval_every=20,
+                       eval_episodes=2, checkpoint_every=40, progress_bar=False, video=False)
+        env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
+        try:
+            training.train(env, tmp_path / str(total), algo, trainer, 0, "internal", "bca", "type1",
+                           make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5))
+        finally:
+            env.close()
+        records = [json.loads(line) for line in (tmp_path / str(total) / "evaluations.jsonl").read_text().splitlines()]
+        runs[total] = [{k: v for k, v in r.items() if k != "wall_s"} for r in records]  # all but the clock
+    assert [r["step"] for r in runs[80]] == [20, 40, 60, 80]
+    assert runs[40] == runs[80][:2]
+    weights = {total: SACfD.load(tmp_path / str(total) / "checkpoints" / "step_40.zip").policy.state_dict()
+               for total in (40, 80)}
+    assert weights[40].keys() == weights[80].keys()
+    assert all(torch.equal(weights[40][k], weights[80][k]) for k in weights[40])
