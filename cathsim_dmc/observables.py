@@ -91,12 +91,15 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
     if overrides:
         settings = ObservationSettings(**{**settings.__dict__, **overrides})
     check_number("image_size", settings.image_size, 1, whole=True)  # 0 divides by zero in the renderer
-    if settings.renderer == "gl":
-        check_render_size("image_size", settings.image_size)
     if settings.style not in IMAGE_STYLES:
         raise ValueError(f"image style={settings.style!r}; choose one of {IMAGE_STYLES}")
     if settings.renderer not in RENDERERS:
         raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
+    largest = TopView.largest_image_size(settings)
+    if settings.image_size > largest:
+        raise ValueError(f"image_size={settings.image_size!r} is too large for the {settings.renderer} renderer "
+                         f"and the {settings.style} style (its GL renders are supersampled within the "
+                         f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}")
     if not settings.noise_std >= 0:
         raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
     if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
@@ -195,6 +198,20 @@ class TopView:
     # Camera style, raster: grey level of a pixel fully covered by the bright wire seen
     # through the see-through vessel (median 222 over such pixels of a 480 px GL render).
     CAMERA_WIRE_LEVEL = 222.0
+
+    @classmethod
+    def largest_image_size(cls, settings: ObservationSettings) -> int:
+        """The largest `image_size` whose GL renders fit the offscreen framebuffer, for the
+        images `settings` enable (any size if they need no GL render)."""
+        factors = []
+        if "pixels" in settings.enabled:
+            if settings.style == "camera":  # gl: the image; raster: its background
+                factors.append(cls.IMAGE_SUPERSAMPLING)
+            elif settings.renderer == "gl":  # fluoro: the wire's coverage from a segmentation render
+                factors.append(cls.MASK_SUPERSAMPLING)
+        if "guidewire_mask" in settings.enabled and settings.renderer == "gl":
+            factors.append(cls.MASK_SUPERSAMPLING)
+        return MAX_RENDER_PX // max(factors) if factors else 2**31 - 1
 
     def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl",
                  wire=None, vessel_geom_id=None):

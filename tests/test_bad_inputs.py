@@ -204,8 +204,12 @@ def _train(algo=None, trainer=None):
 # (id, call with the test's tmp_path, exception type, text the message must contain)
 API_CASES = [
     ("tasks.load(image_size=0)", _load(image_size=0), ValueError, "image_size=0"),
-    ("tasks.load(image_size=512, renderer='gl')", _load(obs="pixels", image_size=512, renderer="gl"), ValueError,
-     "image_size=512 is larger than the offscreen framebuffer"),
+    ("tasks.load(image_size=300, renderer='gl')", _load(obs="pixels", image_size=300, renderer="gl"), ValueError,
+     "image_size=300 is too large for the gl renderer and the camera style"),
+    ("tasks.load(obs='enn', image_size=200, renderer='gl')", _load(obs="enn", image_size=200, renderer="gl"),
+     ValueError, "choose 1 to 120"),
+    ("tasks.load(obs='pixels', image_size=300)", _load(obs="pixels", image_size=300), ValueError,
+     "image_size=300 is too large for the raster renderer and the camera style"),
     ("CathSimEnv(render_size=960)", _gym_env(render_mode="rgb_array", render_size=960), ValueError,
      "render_size=960"),
     ("tasks.load(delta_m=-1)", _load(delta_m=-1), ValueError, "delta_m=-1"),
