@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The default test suite (under ~10 minutes on 2 cores). Slow tests: scripts/test.sh -m slow
+# The default test suite (7-19 minutes on 2 cores, by machine). Slow tests: scripts/test.sh -m slow
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
