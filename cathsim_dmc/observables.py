@@ -96,7 +96,7 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
     if settings.renderer not in RENDERERS:
         raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
     largest = TopView.largest_image_size(settings)
-    if settings.image_size > largest:
+    if largest is not None and settings.image_size > largest:
         raise ValueError(f"image_size={settings.image_size!r} is too large for the {settings.renderer} renderer "
                          f"and the {settings.style} style (its GL renders are supersampled within the "
                          f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}")
@@ -163,7 +163,11 @@ class CameraCache:
             self._model = physics.model.ptr
         key = (camera, pixels)
         if key not in self._cameras:
-            check_render_size("image size", pixels)  # else dm_control's error surfaces as a GL failure
+            # Checked against this model's own buffer: else dm_control's error surfaces as a GL failure.
+            buffer = physics.model.vis.global_
+            if pixels > min(buffer.offwidth, buffer.offheight):
+                raise ValueError(f"image size={pixels} is larger than the model's offscreen framebuffer "
+                                 f"({buffer.offwidth}x{buffer.offheight} px)")
             from dm_control.mujoco.engine import Camera
 
             try:
@@ -202,7 +206,7 @@ class TopView:
     @classmethod
     def largest_image_size(cls, settings: ObservationSettings) -> int:
         """The largest `image_size` whose GL renders fit the offscreen framebuffer, for the
-        images `settings` enable (any size if they need no GL render)."""
+        images `settings` enable; None if they need no GL render (any size)."""
         factors = []
         if "pixels" in settings.enabled:
             if settings.style == "camera":  # gl: the image; raster: its background
@@ -211,7 +215,7 @@ class TopView:
                 factors.append(cls.MASK_SUPERSAMPLING)
         if "guidewire_mask" in settings.enabled and settings.renderer == "gl":
             factors.append(cls.MASK_SUPERSAMPLING)
-        return MAX_RENDER_PX // max(factors) if factors else 2**31 - 1
+        return MAX_RENDER_PX // max(factors) if factors else None
 
     def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl",
                  wire=None, vessel_geom_id=None):
