@@ -24,6 +24,7 @@ from cathsim_dmc import geom_groups
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import FollowerRobot, Guidewire
+from cathsim_dmc.entities.catheter import CatheterOverWire
 from cathsim_dmc.entities.guidewire import second_moment_of_area
 
 
@@ -37,13 +38,21 @@ def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSIC
 
 
 def cantilever_deflection(n_segments: int, physics_setting=cs_physics.DEFAULT_PHYSICS, length_m: float = 0.1,
-                          force_n: float = 1e-3, youngs_modulus_pa: float = 40e9) -> tuple[float, float, bool]:
+                          force_n: float = 1e-3, youngs_modulus_pa: float = 40e9,
+                          catheter=None) -> tuple[float, float, bool]:
     """(measured, analytic tip deflection in metres, came to rest) of a uniform straight wire
-    under a constant transverse tip load, damped to rest."""
+    under a constant transverse tip load, damped to rest; with `catheter` (a `Catheter`)
+    covering all of it, the two bending together (analytic: E I of both summed)."""
     wire = Guidewire(length_m=length_m, n_segments=n_segments, n_tip_segments=1, tip_length_m=length_m / n_segments,
                      youngs_modulus_pa=youngs_modulus_pa, tip_youngs_modulus_pa=youngs_modulus_pa,
                      tip_shape="straight", damping_ratio=20.0)  # overdamped: settles sooner, same static answer
     physics = bare_wire_physics(wire, physics_setting)
+    stiffness_nm2 = youngs_modulus_pa * second_moment_of_area(wire.core_diameter_m)
+    if catheter is not None:
+        covering = CatheterOverWire(catheter, wire)
+        covering.initialize(physics)
+        covering.apply(physics, 0.0)
+        stiffness_nm2 += catheter.bending_stiffness_nm2
     model, data = physics.model.ptr, physics.data.ptr
     tip_body = physics.bind(wire.segments[-1]).element_id
     tip_site = physics.bind(wire.tip_site).element_id
@@ -56,7 +65,7 @@ def cantilever_deflection(n_segments: int, physics_setting=cs_physics.DEFAULT_PH
         if step > 100 and np.abs(data.qvel).max() < 1e-8:
             at_rest = True
             break
-    analytic = force_n * length_m**3 / (3 * youngs_modulus_pa * second_moment_of_area(wire.core_diameter_m))
+    analytic = force_n * length_m**3 / (3 * stiffness_nm2)
     return float(data.site_xpos[tip_site][0]), float(analytic), at_rest
 
 

@@ -6,7 +6,8 @@ Schema (version 2): one row per control step, all episodes concatenated.
   task, aorta        ()        str
   episode            (N,)      int, episode index
   step               (N,)      int, step within the episode (1 = after the first action)
-  action             (N, 2)    float32, [insertion, rotation] in [-1, 1]
+  action             (N, A)    float32, [insertion, rotation] in [-1, 1] (A = 2), then the
+                               catheter's carriage with a catheter (A = 3)
   reward             (N,)      float32
   tip_position_m     (N, 3)    float32, tip after the step, metres
   contact_force_n    (N,)      float32, total wire-vessel contact force in the state after the
@@ -39,7 +40,7 @@ Optional keys (absent from files that did not record them; readers check):
                                sensor's low-pass sees). The force the metrics use
                                (`wall_forces_n`); every tool records it, files written
                                before it existed fall back to `contact_force_n`.
-  expert_action      (N, 2)    float32, the policy's own action when `action` (executed)
+  expert_action      (N, A)    float32, the policy's own action when `action` (executed)
                                had exploration noise added (cathsim-collect action_noise_std)
   first_episode      ()        int, global index of this file's episode 0 (a shard of a
                                cathsim-collect dataset; episode e was reset with seed + e)
@@ -113,7 +114,7 @@ class TrajectoryRecorder:
 
     def arrays(self) -> dict:
         out = {key: np.asarray(self.rows[key], dtype=dtype) for key, dtype in _PER_STEP.items()}
-        out["action"] = out["action"].reshape(-1, 2)
+        out["action"] = action_rows(out["action"], width=2)
         out["tip_position_m"] = out["tip_position_m"].reshape(-1, 3)
         if self.mean_forces and len(self.mean_forces) == len(out["episode"]):
             out["mean_contact_force_n"] = np.asarray(self.mean_forces, dtype=np.float32)
@@ -171,3 +172,8 @@ def load_trajectories(path) -> dict:
     if version != SCHEMA_VERSION:
         raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
     return arrays
+
+
+def action_rows(values: np.ndarray, width: int) -> np.ndarray:
+    """`values` (a stack of per-step vectors) as (N, its width); (0, `width`) when empty."""
+    return values.reshape(0, width) if values.size == 0 else values.reshape(len(values), -1)

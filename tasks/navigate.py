@@ -17,6 +17,7 @@ from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
 from cathsim_dmc.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
+from cathsim_dmc.entities.catheter import Catheter, CatheterOverWire, catheter_named
 from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings, TopView, image_noise
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
@@ -38,7 +39,7 @@ ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values 
 
 
 def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
-                  progress_weight=None, aim_weight=None, physics=None, **_others) -> None:
+                  progress_weight=None, aim_weight=None, physics=None, catheter=None, **_others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
@@ -59,6 +60,8 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_l
         check_number("aim_weight", aim_weight, 0.0)
     if physics is not None:  # a name in cs_physics.PHYSICS_SETTINGS ("accurate", "fast")
         cs_physics.physics_settings(physics)
+    if catheter is not None:  # a name in CATHETERS ("angled_5f") or a Catheter
+        catheter_named(catheter)
 
 
 @dataclass
@@ -116,6 +119,12 @@ class Navigate(composer.Task):
     starting in the straight sheath. The wire may be in the lumen or in the
     guide channel and sheath (`containment`); anywhere else it has escaped, which
     truncates the episode like a divergence (`escaped`).
+
+    Catheter: `catheter="angled_5f"` (or a `Catheter`) puts a shaped catheter over the wire
+    (`CatheterOverWire`, docs/model.md#catheter). Actions then have a third entry, the
+    catheter carriage's speed; the catheter starts parked with its tip at the sheath's,
+    cannot pass the wire's tip nor go back into the sheath, and `joint_pos` gains its
+    tip's offset behind the wire's tip over the robot's stroke (`catheter_offset_m`).
     """
 
     def __init__(
@@ -140,6 +149,7 @@ class Navigate(composer.Task):
         insertion_limit_margin_m: float | None = None,
         extra_observations: tuple = (),
         physics: str = cs_physics.DEFAULT_PHYSICS,
+        catheter: Catheter | str | None = None,
     ):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
@@ -149,8 +159,14 @@ class Navigate(composer.Task):
         self._target_name = target
         check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
                       insertion_limit_margin_m=insertion_limit_margin_m, progress_weight=progress_weight,
-                      aim_weight=aim_weight, physics=physics)
+                      aim_weight=aim_weight, physics=physics, catheter=catheter)
         self._physics_setting = physics
+        self._catheter = None if catheter is None else catheter_named(catheter)
+        self._catheter_on_wire = None if catheter is None else CatheterOverWire(self._catheter, guidewire)
+        self._catheter_model_key = None  # the model the catheter last read the wire's joints from
+        self._catheter_offset_m = 0.0  # the catheter's tip behind the wire's tip (set per episode)
+        self._catheter_command = 0.0
+        self._insertion_before_m = 0.0
         self._delta_m = float(delta_m)
         self._success_reward = float(success_reward)
         self._dense = bool(dense)
@@ -282,7 +298,7 @@ class Navigate(composer.Task):
             # The robot's pose as bounded features (insertion / stroke, sin and cos of the
             # rotation, which is never wrapped otherwise), then the wire's bending angles (rad).
             "joint_pos": observable.Generic(lambda physics: np.concatenate(
-                [robot.pose_features(physics), physics.bind(wire_joints).qpos])),
+                [robot.pose_features(physics), physics.bind(wire_joints).qpos, self._catheter_features()])),
             # Robot rates as fractions of the drive's maximum speeds, then the wire's (rad/s).
             "joint_vel": observable.Generic(lambda physics: np.concatenate(
                 [robot.rate_features(physics), physics.bind(wire_joints).qvel])),
@@ -301,6 +317,12 @@ class Navigate(composer.Task):
             obs["pixels"].corruptor = image_noise(settings.noise_std)
         return obs
 
+    def _catheter_features(self) -> np.ndarray:
+        """With a catheter: its tip's offset behind the wire's tip over the robot's stroke."""
+        if self._catheter is None:
+            return np.zeros(0)
+        return np.array([self._catheter_offset_m / self._robot.stroke_m])
+
     # -- episode ---------------------------------------------------------------
     def initialize_episode(self, physics, random_state):
         # The wire takes its rest shape in its own initialize_episode hook.
@@ -309,6 +331,14 @@ class Navigate(composer.Task):
             -self._rotation_jitter_rad, self._rotation_jitter_rad)
         self._robot.set_pose(physics, insertion, rotation)
         self._robot.set_insertion_limit(physics, self._insertion_limit_m)
+        if self._catheter_on_wire is not None:
+            if self._catheter_model_key != id(physics.model.ptr):  # a new compiled model: read the wire's own joints
+                self._catheter_on_wire.initialize(physics)
+                self._catheter_model_key = id(physics.model.ptr)
+            # The catheter starts parked: its tip at the sheath's, the wire's shaped tip out of it.
+            self._catheter_offset_m = self._parked_catheter_offset_m(physics)
+            self._catheter_on_wire.apply(physics, self._catheter_offset_m, self._catheter_offset_m)
+            self._catheter_command = 0.0
         self._step_count = 0
         self._success = False
         self._diverged = False
@@ -352,13 +382,18 @@ class Navigate(composer.Task):
             self._force_peak_n = total
 
     def before_step(self, physics, action, random_state):
-        self._robot.apply_action(physics, action)
+        self._robot.apply_action(physics, action[:2])
+        if self._catheter is not None:
+            self._catheter_command = float(np.clip(action[2], -1.0, 1.0))
+            self._insertion_before_m = self._robot.insertion_m(physics)
         self._contacts = None
         self._stepped_state = None
         self._tip_location = None
         self._force_sum_n, self._force_samples, self._force_peak_n = 0.0, 0, 0.0
 
     def after_step(self, physics, random_state):
+        if self._catheter is not None:
+            self._move_catheter(physics)
         # Accelerations and constraint forces of the new state, once (the step info's
         # contact forces need them; see ConstraintSensingPhysics.complete_stepped_state).
         self._stepped_state_complete = (isinstance(physics, cs_physics.ConstraintSensingPhysics)
@@ -384,7 +419,43 @@ class Navigate(composer.Task):
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
-            shape=(2,), dtype=np.float32, minimum=-1.0, maximum=1.0, name="insertion,rotation")
+            shape=(self.action_size,), dtype=np.float32, minimum=-1.0, maximum=1.0, name=",".join(self.action_names))
+
+    @property
+    def action_names(self) -> tuple:
+        """What each action entry drives: the wire's insertion and rotation, then the catheter's carriage."""
+        return ("insertion", "rotation") + (() if self._catheter is None else ("catheter",))
+
+    @property
+    def action_size(self) -> int:
+        return len(self.action_names)
+
+    # -- catheter ----------------------------------------------------------------
+    @property
+    def catheter(self) -> Catheter | None:
+        """The catheter over the wire, or None (then actions are [insertion, rotation])."""
+        return self._catheter
+
+    @property
+    def catheter_offset_m(self) -> float:
+        """How far the catheter's tip lies behind the wire's tip, along the wire, in metres (0: flush)."""
+        return self._catheter_offset_m
+
+    def _parked_catheter_offset_m(self, physics) -> float:
+        """The offset with the catheter's tip at the sheath's tip (the robot's outlet): the
+        wire out of the outlet, its start length plus the carriage's travel."""
+        return self._robot.initial_insertion_m + self._robot.insertion_m(physics)
+
+    def _move_catheter(self, physics) -> None:
+        """The catheter carriage's move of this control step: the catheter keeps its place while
+        the wire moves, and moves by its own command (action +1: `max_speed_m_s` forwards). It
+        cannot pass the wire's tip nor go back into the sheath."""
+        wire_moved_m = self._robot.insertion_m(physics) - self._insertion_before_m
+        catheter_moved_m = self._catheter_command * self._catheter.max_speed_m_s * self.control_timestep
+        offset = self._catheter_offset_m + wire_moved_m - catheter_moved_m
+        parked_m = self._parked_catheter_offset_m(physics)
+        self._catheter_offset_m = float(np.clip(offset, 0.0, parked_m))
+        self._catheter_on_wire.apply(physics, self._catheter_offset_m, straight_from_m=parked_m)
 
     def get_reward(self, physics):
         if self._diverged or self._escaped:  # cut short: the step says nothing about the task
@@ -600,31 +671,34 @@ class NavigationEnvironment(composer.Environment):
         self._physics.legacy_step = self._legacy_step
 
     def step(self, action):
-        """Steps with `action` = [insertion, rotation], each in [-1, 1]; values outside are clipped.
+        """Steps with `action` = [insertion, rotation] (then the catheter's carriage, with a
+        catheter), each in [-1, 1]; values outside are clipped.
 
         An action of another shape or with a NaN or infinite value raises ValueError before
         any physics runs, and the environment stays usable. A diverged simulation or an
         escaped wire ends the episode as a truncation (reward 0, discount 1).
         """
-        timestep = super().step(validated_action(action))
+        timestep = super().step(validated_action(action, self.task.action_names))
         if (self.task.diverged or self.task.escaped) and timestep.last():
             timestep = timestep._replace(reward=0.0, discount=1.0)
         return timestep
 
 
-def validated_action(action) -> np.ndarray:
-    """`action` as a float64 array of shape (2,); ValueError naming the bad value otherwise."""
+def validated_action(action, names=("insertion", "rotation")) -> np.ndarray:
+    """`action` as a float64 array of shape (len(names),); ValueError naming the bad value otherwise."""
+    expected = (ACTION_EXPECTED if len(names) == 2 else
+                f"shape ({len(names)},), finite, [{', '.join(names)}] in [-1, 1] (values outside are clipped)")
     try:
         raw = np.asarray(action)
         if raw.dtype.kind not in "iufO":
             raise TypeError
         array = raw.astype(np.float64)
     except (TypeError, ValueError):  # strings, ragged lists, objects that are not numbers
-        raise ValueError(f"action={_one_line(action)} is not numeric; expected {ACTION_EXPECTED}") from None
-    if array.shape != (2,):
-        raise ValueError(f"action={_one_line(action)} has shape {array.shape}; expected {ACTION_EXPECTED}")
+        raise ValueError(f"action={_one_line(action)} is not numeric; expected {expected}") from None
+    if array.shape != (len(names),):
+        raise ValueError(f"action={_one_line(action)} has shape {array.shape}; expected {expected}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"action={_one_line(action)} is not finite; expected {ACTION_EXPECTED}")
+        raise ValueError(f"action={_one_line(action)} is not finite; expected {expected}")
     return array
 
 

@@ -48,6 +48,7 @@ CLI_CASES = [
     ("eval", ["task.delta_m=-1"], "delta_m=-1", True),
     ("eval", ["task.physics=quick"], "physics='quick' is not a physics setting; choose one of ['accurate', 'fast']",
      True),
+    ("eval", ["task.catheter=cobra"], "catheter='cobra' is not a catheter; choose one of ['angled_5f']", True),
     ("eval", ["policy={run}", "obs=enn"], "obs='internal'", True),
     # cathsim-train
     ("train", ["obs=xyz"], "enn", True),

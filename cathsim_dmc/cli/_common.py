@@ -134,7 +134,7 @@ def explicit_override(key: str) -> bool:
 # and is evaluated, and replayed for datasets, with them whatever the command line says
 # (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
 IMAGE_OPTIONS = ("renderer", "style", "lao_deg")
-AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations", "physics")
+AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations", "physics", "catheter")
 
 
 def pick(options: Mapping, keys: Sequence[str]) -> dict:
@@ -163,6 +163,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
         kwargs["insertion_limit_margin_m"] = task.insertion_limit_margin_m
     if task.get("physics") is not None:
         kwargs["physics"] = task.physics
+    if task.get("catheter") is not None:
+        kwargs["catheter"] = task.catheter
     params = cfg.aorta.get("params")
     if params is not None:
         kwargs["aorta_params"] = OmegaConf.to_container(params, resolve=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from cathsim_dmc.rl.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 from cathsim_dmc.run_files import remove_temporaries, write_atomic
-from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder
+from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder, action_rows
 
 log = logging.getLogger("cathsim-collect")
 
@@ -68,7 +68,7 @@ class FeatureRecorder(TrajectoryRecorder):
             out["feature_z"] = np.stack(self.features).astype(np.float32)
             out["start_feature_z"] = np.stack(self.start_features).astype(np.float32)
         if self.clean_action_fn is not None:
-            out["expert_action"] = np.asarray(self.clean_actions, dtype=np.float32).reshape(-1, 2)
+            out["expert_action"] = action_rows(np.asarray(self.clean_actions, dtype=np.float32), width=2)
         return out
 
 
