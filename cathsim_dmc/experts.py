@@ -19,6 +19,24 @@ interventionalist does with an angled wire:
   lumen radii (each deeper stroke leaves the wire in another posture) in quarter-radius
   steps; then retreat out of the branch and enter again.
 
+With a catheter over the wire (`Navigate(catheter=...)`; actions then have a third entry,
+the catheter's carriage) the expert leaves it parked at the sheath unless the path turns
+back on itself before the target (more than `catheter_turn_deg` between where the path
+runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent at a
+reverse angle, as the LCCA does from a bovine trunk), where a wire alone cannot be pushed
+up the branch (its shaft lies along the parent and takes the push). There it does what an
+interventionalist does with a shaped catheter:
+
+* **lead with the catheter**: bring the catheter's tip up to the wire's, then steer the
+  pair (the catheter's curve, over the wire's soft tip, is the bend the aim turns) with the
+  catheter following the wire;
+* **hold it and advance the wire**: once the tip is within `catheter_hold_m` of the target
+  and points at it (within `catheter_aim_rad`), hold the catheter and push the wire out
+  of it at half speed without turning: the catheter's curve, backed by its stiffness,
+  sends the wire up the branch;
+* **try again**: if the tip ends up `catheter_give_up_m` further from the target than
+  where the catheter was held, pull the wire back into the catheter and steer again.
+
 Past the other ostia the look-ahead follows the arch's inner curve, which keeps the bend
 away from the branches on the outer curve; at the target ostium the centerline turns
 into the branch and the bend follows it. Every length is relative to the asset's lumen
@@ -64,6 +82,12 @@ class CenterlineExpert:
         self.stroke_radii = 1.0
         self.stroke_step_radii = 0.25
         self.backoffs_before_reset = 8
+        # With a catheter (see the module docstring).
+        self.catheter_turn_deg = 80.0
+        self.catheter_hold_m = 0.014
+        self.catheter_aim_rad = np.deg2rad(40)
+        self.catheter_give_up_m = 0.005
+        self.catheter_push = 0.5
         self._episode_key = None
 
     def reset(self, env):
@@ -85,8 +109,55 @@ class CenterlineExpert:
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
         self._schedule = self._stroke_schedule()
+        self._has_catheter = getattr(task, "catheter", None) is not None
+        self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > self.catheter_turn_deg
+        self._catheter_phase = "lead"
+        self._held_distance_m = None
+
+    @staticmethod
+    def path_turn_deg(line: CenterlinePath) -> float:
+        """Angle in degrees between where the path runs 30-45 mm before its end and its last 15 mm."""
+        end = line.length_m
+        before = line.at(end - 0.030) - line.at(max(0.0, end - 0.045))
+        last = line.at(end) - line.at(end - 0.015)
+        cosine = np.dot(before, last) / (np.linalg.norm(before) * np.linalg.norm(last))
+        return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
     def __call__(self, observation, env) -> np.ndarray:
+        action = self._wire_action(env)
+        if not self._has_catheter:
+            return action
+        if not self.uses_catheter:  # the catheter stays parked at the sheath
+            return np.append(action, 0.0).astype(np.float32)
+        return self._catheter_action(action, env)
+
+    def _catheter_action(self, wire_action, env) -> np.ndarray:
+        """[insertion, rotation, catheter] for the catheter-led approach (module docstring)."""
+        task, physics = env.task, env.physics
+        offset = task.catheter_offset_m
+        distance = task.target_distance_m(physics)
+        if self._catheter_phase == "hold":
+            if distance > self._held_distance_m + self.catheter_give_up_m:
+                self._catheter_phase = "retract"
+            else:
+                return np.array([self.catheter_push, 0.0, 0.0], dtype=np.float32)
+        if self._catheter_phase == "retract":
+            if offset > 0.0:
+                return np.array([-1.0, 0.0, 0.0], dtype=np.float32)
+            self._catheter_phase = "lead"
+        if offset > 0.0:  # bring the catheter's tip up to the wire's, the wire held
+            return np.array([0.0, wire_action[1], 1.0], dtype=np.float32)
+        tip = task.tip_position_m(physics)
+        to_target = self._target - tip
+        tip_axis = physics.bind(task.guidewire.segments[-1]).xmat.reshape(3, 3)[:, 2]
+        aimed = np.dot(tip_axis, to_target) > np.cos(self.catheter_aim_rad) * np.linalg.norm(to_target)
+        if distance < self.catheter_hold_m and aimed:
+            self._catheter_phase, self._held_distance_m = "hold", distance
+            return np.array([self.catheter_push, 0.0, 0.0], dtype=np.float32)
+        # Steer the pair: the catheter moves with the wire.
+        return np.array([wire_action[0], wire_action[1], wire_action[0]], dtype=np.float32)
+
+    def _wire_action(self, env) -> np.ndarray:
         task, physics = env.task, env.physics
         key = (id(task), id(physics.model.ptr))
         if task.step_count == 0 or key != self._episode_key:

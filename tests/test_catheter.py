@@ -1,0 +1,140 @@
+"""The catheter over the wire: its stiffness and curve, its carriage, and the expert with it."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cathsim_dmc import fidelity, tasks
+from cathsim_dmc.entities import Guidewire
+from cathsim_dmc.entities.catheter import Catheter, CatheterOverWire
+from cathsim_dmc.entities.guidewire import second_moment_of_area
+from cathsim_dmc.experts import CenterlineExpert
+from cathsim_dmc.gym import CathSimEnv
+
+
+def test_a_covered_cantilever_bends_as_the_wire_and_the_catheter_together():
+    catheter = Catheter(curve_deg=0.0)  # a straight catheter over all of a straight wire
+    deflection, analytic, at_rest = fidelity.cantilever_deflection(20, catheter=catheter)
+    bare, bare_analytic, _ = fidelity.cantilever_deflection(20)
+    assert at_rest
+    # Beam theory with E I of the two summed, to the wire's own accuracy (within 1%).
+    assert deflection == pytest.approx(analytic, rel=0.01)
+    wire_ei = 40e9 * second_moment_of_area(0.5e-3)
+    assert bare / deflection == pytest.approx(1 + catheter.bending_stiffness_nm2 / wire_ei, rel=0.02)
+
+
+def _settled_tip_angle_deg(wire, tip_offset_m, catheter, from_segment=0):
+    # Without sleep (`accurate`): a sleeping tree stops before its springs settle.
+    physics = fidelity.bare_wire_physics(wire, "accurate")
+    covering = CatheterOverWire(catheter, wire)
+    covering.initialize(physics)
+    covering.apply(physics, tip_offset_m)
+    for _ in range(1500):
+        physics.step()
+    segments = physics.bind(wire.segments)
+    shaft, tip = segments.xmat[from_segment].reshape(3, 3)[:, 2], segments.xmat[-1].reshape(3, 3)[:, 2]
+    rest_y = covering.joint_values(tip_offset_m)[1][1::2]
+    return math.degrees(math.acos(np.clip(shaft @ tip, -1.0, 1.0))), rest_y
+
+
+def test_the_covered_tip_rests_at_the_stiffness_weighted_curve():
+    # A straight wire whose 15 mm tip the catheter covers, flush: each tip hinge rests at
+    # the catheter's curve over its 1.5 mm piece times the catheter's share of the summed
+    # stiffness (coaxial beams at rest), and the chain settles there.
+    wire = Guidewire(length_m=0.1, n_segments=10, tip_shape="straight")
+    catheter = Catheter(curve_deg=90.0, curve_length_m=wire.tip_length_m)
+    tip_ei = 8e9 * second_moment_of_area(wire.core_diameter_m)
+    share = catheter.bending_stiffness_nm2 / (catheter.bending_stiffness_nm2 + tip_ei)
+    measured, rest_y = _settled_tip_angle_deg(wire, 0.0, catheter)
+    piece_deg = 90.0 * (wire.tip_length_m / 10) / wire.tip_length_m
+    assert np.degrees(rest_y[-9:]) == pytest.approx(np.full(9, piece_deg * share), rel=1e-9)
+    assert measured == pytest.approx(np.degrees(rest_y.sum()), abs=1.0)
+    # The hinges carry all but the last half piece of the curve (85.5 of 90 degrees).
+    assert measured == pytest.approx(85.5 * share, abs=2.0)
+    # Pulled back by the tip's length, the catheter leaves the wire's soft tip straight
+    # (its curve now bends the shaft behind it).
+    wire = Guidewire(length_m=0.1, n_segments=10, tip_shape="straight")
+    first_tip_segment = -10
+    assert _settled_tip_angle_deg(wire, wire.tip_length_m, catheter, first_tip_segment)[0] < 2.0
+
+
+def test_the_sheath_holds_the_catheter_straight():
+    wire = Guidewire()
+    covering = CatheterOverWire(Catheter(), wire)
+    physics = fidelity.bare_wire_physics(wire)
+    covering.initialize(physics)
+    _, rest_in_sheath = covering.joint_values(0.05, straight_from_m=0.05)
+    _, rest_out = covering.joint_values(0.05)
+    k_wire = physics.model.jnt_stiffness[physics.bind(wire.joints).element_id]
+    assert np.allclose(rest_in_sheath, wire.rest_qpos)  # no curve: only the wire's own tip bend
+    assert np.abs(rest_out - wire.rest_qpos).max() > 0.1
+    stiffness, _ = covering.joint_values(0.05, straight_from_m=0.05)
+    assert (stiffness >= k_wire).all() and (stiffness > k_wire).sum() > 10
+
+
+def test_the_carriage_moves_the_catheter_along_the_wire_within_its_limits():
+    env = tasks.load("bca", "type1", seed=0, catheter="angled_5f")
+    task = env.task
+    assert env.action_spec().shape == (3,)
+    env.reset()
+    parked = task.catheter_offset_m
+    assert parked == pytest.approx(task.robot.initial_insertion_m + task.robot.insertion_m(env.physics))
+    for _ in range(5):  # the wire advances, the catheter stays at the sheath
+        env.step(np.array([1.0, 0.0, 0.0]))
+    assert task.catheter_offset_m == pytest.approx(task.robot.initial_insertion_m + task.robot.insertion_m(env.physics))
+    before, wire_before = task.catheter_offset_m, task.robot.insertion_m(env.physics)
+    env.step(np.array([0.0, 0.0, 1.0]))  # the catheter at full speed (the wire's servo still settling)
+    step_m = task.catheter.max_speed_m_s * task.control_timestep
+    wire_moved_m = task.robot.insertion_m(env.physics) - wire_before
+    assert before - task.catheter_offset_m == pytest.approx(step_m - wire_moved_m, abs=1e-9)
+    for _ in range(30):  # it stops at the wire's tip
+        env.step(np.array([0.0, 0.0, 1.0]))
+    assert task.catheter_offset_m == 0.0
+    for _ in range(30):  # and back at the sheath
+        env.step(np.array([0.0, 0.0, -1.0]))
+    assert task.catheter_offset_m == pytest.approx(task.robot.initial_insertion_m + task.robot.insertion_m(env.physics))
+    with pytest.raises(ValueError, match=r"expected shape \(3,\).*catheter"):
+        env.step(np.array([1.0, 0.0]))
+
+
+def test_an_unknown_catheter_is_refused_with_the_choices():
+    with pytest.raises(ValueError, match="catheter='nope' is not a catheter; choose one of \\['angled_5f'\\]"):
+        tasks.load("bca", "type1", catheter="nope")
+
+
+@pytest.fixture(scope="module")
+def reverse_angle_lcca():
+    """A generated bovine arch whose LCCA leaves the shared trunk at a reverse angle
+    (a wire alone stalled in its mouth: docs/results.md)."""
+    from cathsim_dmc.tasks.randomized import anatomy_pool
+
+    return str(anatomy_pool(pool_size=2, pool_seed=200, base="bovine")[1])
+
+
+def _expert_episode(aorta, catheter, seed=1):
+    env = CathSimEnv("lcca", aorta, "internal", catheter=catheter)
+    expert = CenterlineExpert()
+    observation, info = env.reset(seed=seed)
+    done = False
+    while not done:
+        observation, _, terminated, truncated, info = env.step(expert(observation, env))
+        done = terminated or truncated
+    return info, expert
+
+
+def test_the_expert_reaches_a_reverse_angle_lcca_with_the_catheter(reverse_angle_lcca):
+    info, expert = _expert_episode(reverse_angle_lcca, "angled_5f")
+    assert expert.uses_catheter
+    assert info["success"] and not info["escaped"]
+    info, _ = _expert_episode(reverse_angle_lcca, None)
+    assert not info["success"]  # the wire alone does not get up this branch
+
+
+def test_the_expert_leaves_the_catheter_parked_where_the_wire_alone_will_do():
+    env = CathSimEnv("lcca", "type1", "internal", catheter="angled_5f")
+    expert = CenterlineExpert()
+    observation, _ = env.reset(seed=0)
+    action = expert(observation, env)
+    assert not expert.uses_catheter
+    assert action.shape == (3,) and action[2] == 0.0
