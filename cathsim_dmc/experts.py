@@ -27,15 +27,19 @@ reverse angle, as the LCCA does from a bovine trunk), where a wire alone cannot 
 up the branch (its shaft lies along the parent and takes the push). There it does what an
 interventionalist does with a shaped catheter:
 
-* **lead with the catheter**: bring the catheter's tip up to the wire's, then steer the
-  pair (the catheter's curve, over the wire's soft tip, is the bend the aim turns) with the
-  catheter following the wire;
+* **lead with the catheter**: the wire goes first, past the other ostia (a stiff curved
+  tip would hook the first of them), and within `catheter_bring_up_m` of the target the
+  catheter's tip comes up to the wire's; then it steers the pair (the catheter's curve,
+  over the wire's soft tip, is the bend the aim turns) with the catheter following the wire;
 * **hold it and advance the wire**: once the tip is within `catheter_hold_m` of the target
   and points at it (within `catheter_aim_rad`), hold the catheter and push the wire out
   of it at half speed without turning: the catheter's curve, backed by its stiffness,
   sends the wire up the branch;
 * **try again**: if the tip ends up `catheter_give_up_m` further from the target than
-  where the catheter was held, pull the wire back into the catheter and steer again.
+  where the catheter was held, pull the wire back into the catheter and steer again; if
+  the pair leaves the path's lumen (another branch) for `catheter_lost_steps` steps, draw
+  the catheter back `catheter_stand_back_m` behind the wire's tip and let the wire lead
+  again. The catheter comes up only while the wire's tip is in the path's lumen.
 
 Past the other ostia the look-ahead follows the arch's inner curve, which keeps the bend
 away from the branches on the outer curve; at the target ostium the centerline turns
@@ -84,6 +88,9 @@ class CenterlineExpert:
         self.backoffs_before_reset = 8
         # With a catheter (see the module docstring).
         self.catheter_turn_deg = 80.0
+        self.catheter_bring_up_m = 0.030
+        self.catheter_lost_steps = 3  # the pair this long out of the path's lumen: the wire leads again
+        self.catheter_stand_back_m = 0.040
         self.catheter_hold_m = 0.014
         self.catheter_aim_rad = np.deg2rad(40)
         self.catheter_give_up_m = 0.005
@@ -111,8 +118,9 @@ class CenterlineExpert:
         self._schedule = self._stroke_schedule()
         self._has_catheter = getattr(task, "catheter", None) is not None
         self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > self.catheter_turn_deg
-        self._catheter_phase = "lead"
+        self._catheter_phase = "wire"
         self._held_distance_m = None
+        self._lost_steps = 0
 
     @staticmethod
     def path_turn_deg(line: CenterlinePath) -> float:
@@ -136,6 +144,16 @@ class CenterlineExpert:
         task, physics = env.task, env.physics
         offset = task.catheter_offset_m
         distance = task.target_distance_m(physics)
+        if self._catheter_phase == "lead" and self._lost_steps >= self.catheter_lost_steps:
+            self._catheter_phase = "stand_back"  # the pair is in another branch
+        if self._catheter_phase == "stand_back":
+            if offset < self.catheter_stand_back_m:
+                return np.array([0.0, wire_action[1], -1.0], dtype=np.float32)
+            self._catheter_phase = "wire"
+        if self._catheter_phase == "wire":
+            if distance > self.catheter_bring_up_m or self._lost_steps:
+                return np.append(wire_action, 0.0).astype(np.float32)
+            self._catheter_phase = "lead"
         if self._catheter_phase == "hold":
             if distance > self._held_distance_m + self.catheter_give_up_m:
                 self._catheter_phase = "retract"
@@ -180,6 +198,7 @@ class CenterlineExpert:
         else:
             self._since_progress += 1
         lost = outside > self.lost_margin_m
+        self._lost_steps = self._lost_steps + 1 if lost else 0
         if remaining < self.min_progress_m:
             self._since_progress = 0  # at the target's depth: only the aim is left to fix
         if self._retracting == 0 and (lost or self._since_progress >= self.stall_steps):

@@ -164,9 +164,9 @@ class Navigate(composer.Task):
         self._catheter = None if catheter is None else catheter_named(catheter)
         self._catheter_on_wire = None if catheter is None else CatheterOverWire(self._catheter, guidewire)
         self._catheter_model_key = None  # the model the catheter last read the wire's joints from
-        self._catheter_offset_m = 0.0  # the catheter's tip behind the wire's tip (set per episode)
+        self._catheter_out_m = 0.0  # the catheter's tip past the sheath's tip, along the wire (per episode)
+        self._catheter_offset_m = 0.0  # the catheter's tip behind the wire's tip
         self._catheter_command = 0.0
-        self._insertion_before_m = 0.0
         self._delta_m = float(delta_m)
         self._success_reward = float(success_reward)
         self._dense = bool(dense)
@@ -336,9 +336,9 @@ class Navigate(composer.Task):
                 self._catheter_on_wire.initialize(physics)
                 self._catheter_model_key = id(physics.model.ptr)
             # The catheter starts parked: its tip at the sheath's, the wire's shaped tip out of it.
-            self._catheter_offset_m = self._parked_catheter_offset_m(physics)
-            self._catheter_on_wire.apply(physics, self._catheter_offset_m, self._catheter_offset_m)
+            self._catheter_out_m = 0.0
             self._catheter_command = 0.0
+            self._apply_catheter(physics)
         self._step_count = 0
         self._success = False
         self._diverged = False
@@ -385,7 +385,6 @@ class Navigate(composer.Task):
         self._robot.apply_action(physics, action[:2])
         if self._catheter is not None:
             self._catheter_command = float(np.clip(action[2], -1.0, 1.0))
-            self._insertion_before_m = self._robot.insertion_m(physics)
         self._contacts = None
         self._stepped_state = None
         self._tip_location = None
@@ -441,21 +440,24 @@ class Navigate(composer.Task):
         """How far the catheter's tip lies behind the wire's tip, along the wire, in metres (0: flush)."""
         return self._catheter_offset_m
 
-    def _parked_catheter_offset_m(self, physics) -> float:
-        """The offset with the catheter's tip at the sheath's tip (the robot's outlet): the
-        wire out of the outlet, its start length plus the carriage's travel."""
+    def _wire_out_of_sheath_m(self, physics) -> float:
+        """How far the wire's tip lies past the sheath's tip (the robot's outlet), along the
+        wire: its start length plus the carriage's travel."""
         return self._robot.initial_insertion_m + self._robot.insertion_m(physics)
 
     def _move_catheter(self, physics) -> None:
         """The catheter carriage's move of this control step: the catheter keeps its place while
         the wire moves, and moves by its own command (action +1: `max_speed_m_s` forwards). It
         cannot pass the wire's tip nor go back into the sheath."""
-        wire_moved_m = self._robot.insertion_m(physics) - self._insertion_before_m
-        catheter_moved_m = self._catheter_command * self._catheter.max_speed_m_s * self.control_timestep
-        offset = self._catheter_offset_m + wire_moved_m - catheter_moved_m
-        parked_m = self._parked_catheter_offset_m(physics)
-        self._catheter_offset_m = float(np.clip(offset, 0.0, parked_m))
-        self._catheter_on_wire.apply(physics, self._catheter_offset_m, straight_from_m=parked_m)
+        moved_m = self._catheter_command * self._catheter.max_speed_m_s * self.control_timestep
+        wire_out_m = self._wire_out_of_sheath_m(physics)
+        self._catheter_out_m = float(np.clip(self._catheter_out_m + moved_m, 0.0, wire_out_m))
+        self._apply_catheter(physics)
+
+    def _apply_catheter(self, physics) -> None:
+        wire_out_m = self._wire_out_of_sheath_m(physics)
+        self._catheter_offset_m = max(0.0, wire_out_m - self._catheter_out_m)
+        self._catheter_on_wire.apply(physics, self._catheter_offset_m, sheath_from_m=wire_out_m)
 
     def get_reward(self, physics):
         if self._diverged or self._escaped:  # cut short: the step says nothing about the task

@@ -59,18 +59,27 @@ def test_the_covered_tip_rests_at_the_stiffness_weighted_curve():
     assert _settled_tip_angle_deg(wire, wire.tip_length_m, catheter, first_tip_segment)[0] < 2.0
 
 
-def test_the_sheath_holds_the_catheter_straight():
+def test_the_catheter_adds_nothing_inside_the_sheath():
     wire = Guidewire()
     covering = CatheterOverWire(Catheter(), wire)
     physics = fidelity.bare_wire_physics(wire)
     covering.initialize(physics)
-    _, rest_in_sheath = covering.joint_values(0.05, straight_from_m=0.05)
-    _, rest_out = covering.joint_values(0.05)
     k_wire = physics.model.jnt_stiffness[physics.bind(wire.joints).element_id]
-    assert np.allclose(rest_in_sheath, wire.rest_qpos)  # no curve: only the wire's own tip bend
-    assert np.abs(rest_out - wire.rest_qpos).max() > 0.1
-    stiffness, _ = covering.joint_values(0.05, straight_from_m=0.05)
-    assert (stiffness >= k_wire).all() and (stiffness > k_wire).sum() > 10
+    parked_k, parked_rest = covering.joint_values(0.05, sheath_from_m=0.05)  # its tip at the sheath's
+    assert np.array_equal(parked_k, k_wire) and np.array_equal(parked_rest, wire.rest_qpos)
+    out_k, out_rest = covering.joint_values(0.05)  # the same offset with no sheath behind
+    assert (out_k > k_wire).sum() > 10 and np.abs(out_rest - wire.rest_qpos).max() > 0.1
+
+
+def test_a_parked_catheter_leaves_the_episode_unchanged():
+    actions = [np.array([1.0, 0.3])] * 40 + [np.array([-0.5, -1.0])] * 10
+    runs = []
+    for catheter in (None, "angled_5f"):
+        env = tasks.load("bca", "type1", seed=3, catheter=catheter)
+        env.reset()
+        runs.append([env.step(a if catheter is None else np.append(a, 0.0)).observation["joint_pos"][:69].copy()
+                     for a in actions])
+    assert np.array_equal(np.array(runs[0]), np.array(runs[1]))
 
 
 def test_the_carriage_moves_the_catheter_along_the_wire_within_its_limits():

@@ -117,36 +117,41 @@ class CatheterOverWire:
         self._armature0 = model.dof_armature[self._dof_adr].copy()
         self._damping0 = model.dof_damping[self._dof_adr].copy()
 
-    def joint_values(self, tip_offset_m: float, straight_from_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def joint_values(self, tip_offset_m: float, sheath_from_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """(stiffness, rest angle) of every wire hinge with the catheter's tip `tip_offset_m` behind the wire's tip.
 
-        Hinges `straight_from_m` or more behind the wire's tip lie in the introducer sheath,
-        which holds the catheter straight: there it adds stiffness but no curve (a curve
-        pressed into the straight sheath would pinch the wire in it).
+        The wire from `sheath_from_m` behind its tip backwards lies in the introducer sheath,
+        which holds wire and catheter straight and coaxial: the catheter adds nothing there
+        (pressed into the straight sheath, its curve pinched the wire and stalled the drive;
+        its stiffness alone changed how the wire buckles in the channel's clearance, which
+        models nothing real). A parked catheter therefore leaves the wire as it is.
         """
-        lo = self._from_tip_m - self._after_m - tip_offset_m  # the joint's share of rod, measured from the catheter tip
+        # Each hinge's share of rod in catheter coordinates (from the catheter's tip, backwards).
+        lo = self._from_tip_m - self._after_m - tip_offset_m
         hi = self._from_tip_m + self._before_m - tip_offset_m
         span = hi - lo
-        covered = np.clip(hi - np.maximum(lo, 0.0), 0.0, span) / span
-        k_catheter = covered * self.catheter.bending_stiffness_nm2 / span
-        # The catheter's rest bend on this joint: its curve's angle over the joint's share of
-        # rod (only the hinges about y bend). Its spring moment k_cath x rest angle is then
-        # E I / span x that angle, as for a beam piece with that rest curvature.
-        # The curve's part outside the sheath, in catheter coordinates (from its tip, backwards).
-        curve_end_m = min(self.catheter.curve_length_m, straight_from_m - tip_offset_m)
+        outside_sheath_m = sheath_from_m - tip_offset_m  # the catheter's length out of the sheath
+        covered_m = np.clip(np.minimum(hi, outside_sheath_m) - np.maximum(lo, 0.0), 0.0, None)
+        k_catheter = covered_m * self.catheter.bending_stiffness_nm2 / span**2
+        # The catheter's rest bend on a hinge: its curve's angle over the hinge's covered share
+        # (only the hinges about y bend). Its spring moment is then E I / span x that angle,
+        # as for a beam piece with that rest curvature.
+        curve_end_m = min(self.catheter.curve_length_m, outside_sheath_m)
         in_curve_m = np.clip(np.minimum(hi, curve_end_m) - np.maximum(lo, 0.0), 0.0, None)
         curve_rad = np.where(self._bends_y, math.radians(self.catheter.curve_deg) * in_curve_m
                              / self.catheter.curve_length_m, 0.0)
         stiffness = self._k0 + k_catheter
-        rest = (self._k0 * self._ref0 + self.catheter.bending_stiffness_nm2 / span * curve_rad) / stiffness
+        covered = k_catheter > 0
+        rest = np.where(covered, (self._k0 * self._ref0 + self.catheter.bending_stiffness_nm2 / span * curve_rad)
+                        / stiffness, self._ref0)
         return stiffness, rest
 
-    def apply(self, physics, tip_offset_m: float, straight_from_m: float = np.inf) -> None:
-        """Covers the wire from `tip_offset_m` (>= 0, metres) behind its tip; no curve
-        `straight_from_m` or more behind it (in the sheath; see `joint_values`)."""
+    def apply(self, physics, tip_offset_m: float, sheath_from_m: float = np.inf) -> None:
+        """Covers the wire from `tip_offset_m` (>= 0, metres) behind its tip back to
+        `sheath_from_m` behind it, where the sheath begins (see `joint_values`)."""
         if self._ids is None:
             raise RuntimeError("CatheterOverWire.initialize(physics) was not called")
-        stiffness, rest = self.joint_values(max(0.0, float(tip_offset_m)), straight_from_m)
+        stiffness, rest = self.joint_values(max(0.0, float(tip_offset_m)), sheath_from_m)
         model = physics.model.ptr
         scale = stiffness / self._k0
         model.jnt_stiffness[self._ids] = stiffness
