@@ -4,7 +4,9 @@ Observations are a Dict: images channel-first uint8 (1, H, W) as stable-baseline
 expects, vectors float32. ``terminated`` means the target was reached; ``truncated``
 means the 300-step limit, a diverged simulation (``info["diverged"]``) or a wire that
 left the anatomy (``info["escaped"]``). Actions are [insertion, rotation] in [-1, 1]
-(values outside are clipped); a wrong shape, NaN or inf raises ValueError.
+(values outside are clipped), with ``catheter=`` a third entry for the catheter's carriage
+(``info["catheter_offset_m"]``: its tip behind the wire's); a wrong shape, NaN or inf
+raises ValueError.
 """
 
 from __future__ import annotations
@@ -108,6 +110,8 @@ class CathSimEnv(gymnasium.Env):
         info["step"] = self._env.task.step_count
         # The episode's anatomy: the aorta's name, or the drawn one with aorta="random".
         info["aorta"] = getattr(self._env, "anatomy_name", self.aorta_name)
+        if self._env.task.catheter is not None:
+            info["catheter_offset_m"] = self._env.task.catheter_offset_m
         return info
 
 

@@ -143,7 +143,10 @@ def test_the_expert_reaches_a_reverse_angle_lcca_with_the_catheter(reverse_angle
 def test_the_expert_leaves_the_catheter_parked_where_the_wire_alone_will_do():
     env = CathSimEnv("lcca", "type1", "internal", catheter="angled_5f")
     expert = CenterlineExpert()
-    observation, _ = env.reset(seed=0)
+    observation, info = env.reset(seed=0)
+    parked_m = info["catheter_offset_m"]
     action = expert(observation, env)
     assert not expert.uses_catheter
     assert action.shape == (3,) and action[2] == 0.0
+    _, _, _, _, info = env.step(action)
+    assert info["catheter_offset_m"] > parked_m  # the wire went in, the catheter stayed at the sheath
