@@ -20,7 +20,7 @@ class ForwardPolicy:
     """Insert at full speed, never rotate."""
 
     def __call__(self, observation, env) -> np.ndarray:
-        return np.array([1.0, 0.0], dtype=np.float32)
+        return with_catheter_parked(np.array([1.0, 0.0], dtype=np.float32), env)
 
 
 class RandomPolicy:
@@ -30,7 +30,7 @@ class RandomPolicy:
         self._rng = np.random.default_rng(seed)
 
     def __call__(self, observation, env) -> np.ndarray:
-        return self._rng.uniform(-1.0, 1.0, size=2).astype(np.float32)
+        return self._rng.uniform(-1.0, 1.0, size=_action_size(env)).astype(np.float32)
 
 
 class AdversarialPolicy:
@@ -74,7 +74,19 @@ class AdversarialPolicy:
     def __call__(self, observation=None, env=None) -> np.ndarray:
         if not self._burst:
             self._next_burst()
-        return np.asarray(self._burst.pop(), dtype=np.float32)
+        return with_catheter_parked(np.asarray(self._burst.pop(), dtype=np.float32), env)
+
+
+def _action_size(env) -> int:
+    """Entries of `env`'s actions: 2, or 3 with a catheter (`Navigate.action_size`)."""
+    return getattr(getattr(env, "task", None), "action_size", 2)
+
+
+def with_catheter_parked(action: np.ndarray, env) -> np.ndarray:
+    """A wire-only [insertion, rotation] `action`, with the catheter's carriage at rest
+    (its entry 0) when `env` has a catheter."""
+    missing = _action_size(env) - len(action)
+    return np.concatenate([action, np.zeros(missing, dtype=action.dtype)]) if missing > 0 else action
 
 
 def _expert(seed: int = 0):

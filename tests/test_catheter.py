@@ -150,3 +150,16 @@ def test_the_expert_leaves_the_catheter_parked_where_the_wire_alone_will_do():
     assert action.shape == (3,) and action[2] == 0.0
     _, _, _, _, info = env.step(action)
     assert info["catheter_offset_m"] > parked_m  # the wire went in, the catheter stayed at the sheath
+
+
+def test_the_built_in_wire_policies_leave_the_catheter_parked():
+    from cathsim_dmc.policies import BUILTIN_POLICIES
+
+    env = CathSimEnv("bca", "type1", "internal", catheter="angled_5f")
+    observation, _ = env.reset(seed=0)
+    for name in ("forward", "adversarial"):
+        action = BUILTIN_POLICIES[name]()(observation, env)
+        assert action.shape == (3,) and action[2] == 0.0, name
+    assert BUILTIN_POLICIES["random"](seed=1)(observation, env).shape == (3,)  # random drives the catheter too
+    plain = CathSimEnv("bca", "type1", "internal")
+    assert BUILTIN_POLICIES["forward"]()(observation, plain).shape == (2,)
