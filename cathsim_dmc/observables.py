@@ -204,7 +204,7 @@ class TopView:
     CAMERA_WIRE_LEVEL = 222.0
 
     @classmethod
-    def largest_image_size(cls, settings: ObservationSettings) -> int:
+    def largest_image_size(cls, settings: ObservationSettings) -> int | None:
         """The largest `image_size` whose GL renders fit the offscreen framebuffer, for the
         images `settings` enable; None if they need no GL render (any size)."""
         factors = []

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cathsim_dmc.checks import check_number
+from cathsim_dmc.entities.guidewire import joint_rod_shares_m
 
 
 @dataclass(frozen=True)
@@ -92,11 +93,9 @@ class CatheterOverWire:
         self._guidewire = guidewire
         lengths = np.asarray(guidewire.segment_lengths_m, dtype=float)
         n = len(lengths)
-        # Joint i (1..n-1) sits at the start of segment i and stands for half of each
-        # neighbouring segment (all of the held proximal one); two hinges per joint, x then y.
+        # Two hinges per joint, x then y; joint i sits at the start of segment i.
         from_tip = np.array([lengths[i:].sum() for i in range(1, n)])
-        before = np.array([lengths[0] if i == 1 else lengths[i - 1] / 2 for i in range(1, n)])
-        after = lengths[1:] / 2
+        before, after = (np.array(share) for share in joint_rod_shares_m(lengths))
         self._from_tip_m = np.repeat(from_tip, 2)
         self._before_m = np.repeat(before, 2)
         self._after_m = np.repeat(after, 2)

@@ -37,6 +37,18 @@ def second_moment_of_area(diameter_m: float) -> float:
     return math.pi * diameter_m**4 / 64.0
 
 
+def joint_rod_shares_m(segment_lengths_m) -> tuple[list, list]:
+    """(before, after): the rod each bending joint stands for, in metres, on each side.
+
+    Joint i (1..n-1) sits at the start of segment i and stands for half of each
+    neighbouring segment, all of the held proximal one (the midpoint rule).
+    """
+    lengths = list(segment_lengths_m)
+    before = [lengths[0] if i == 1 else lengths[i - 1] / 2 for i in range(1, len(lengths))]
+    after = [length / 2 for length in lengths[1:]]
+    return before, after
+
+
 def quasi_static_armature(stiffness: float, timestep_s: float) -> float:
     """Joint armature (kg m^2) that bounds a spring joint's frequency to 0.5 / timestep.
 
@@ -178,6 +190,7 @@ class Guidewire(composer.Entity):
         self._joints = []
         self._stiffness = []
         parent = self._mjcf_root.worldbody
+        shares_before, _ = joint_rod_shares_m(seg_lengths)
         for i, (seg_l, modulus) in enumerate(zip(seg_lengths, seg_moduli)):
             # gravcomp: the wire's weight is negligible against its stiffness and nearly
             # cancelled by buoyancy in blood; compensating it keeps the scaled mass from sagging.
@@ -188,7 +201,7 @@ class Guidewire(composer.Entity):
             if i > 0:
                 # The joint stands for half of each neighbouring segment (all of the
                 # held proximal one), as two beam pieces in series.
-                before = seg_lengths[i - 1] if i == 1 else seg_lengths[i - 1] / 2
+                before = shares_before[i - 1]
                 compliance = before / seg_moduli[i - 1] + (seg_l / 2) / modulus
                 k = inertia_area / compliance
                 armature = quasi_static_armature(k, physics_timestep_s)
