@@ -108,11 +108,34 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
     arena.attach(robot)  # insertion along world +z; the tip starts 25 mm past the outlet
     robot.attach(wire, robot.wire_attachment_site)
     arena.mjcf_model.option.gravity = [0, 0, 0]
-    wall = arena.mjcf_model.worldbody.add(
-        "geom", type="box", size=[0.02, 0.02, 0.002], pos=[0, 0, WALL_FACE_M + 0.002 + margin_m],
-        contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1],
-        solimp=[0.99, 0.999, 0.0005, 0.5, 2], margin=margin_m)
-    physics = mjcf.Physics.from_mjcf_model(arena.mjcf_model)
+    contact = dict(contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1],
+                   solimp=[0.99, 0.999, 0.0005, 0.5, 2], margin=margin_m)
+    root = arena.mjcf_model
+    if cs_physics.physics_settings(physics_setting).wall == "field":
+        # The same face as a distance field (`Aorta(wall="field")`'s contact test): a
+        # 40 mm square facing the wire, its "lumen" on the wire's side. The field is too
+        # large for an MJCF attribute, so it joins the model through a spec.
+        from dm_control.mujoco import wrapper
+
+        from cathsim_dmc import wall_field
+
+        corners = np.array([[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]])
+        face = np.column_stack([corners, np.full(4, WALL_FACE_M)])
+        field = wall_field.build_field(np.stack([face[[0, 1, 2]], face[[0, 2, 3]]]), shift_m=margin_m)
+        box = [[x, y, z] for x in (-0.02, 0.02) for y in (-0.02, 0.02) for z in (WALL_FACE_M - 0.003, WALL_FACE_M + 0.003)]
+        spec = mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
+        spec.add_numeric(name="wall", data=field, size=len(field))
+        spec.add_mesh(name="wall").uservert = np.ravel(box)
+        geom = spec.worldbody.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_SDF, meshname="wall")
+        for key, value in contact.items():
+            setattr(geom, key, value)
+        physics = mjcf.Physics.from_model(wrapper.MjModel(spec.compile()))
+        wall_id = mujoco.mj_name2id(physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, "wall")
+    else:
+        wall = root.worldbody.add("geom", type="box", size=[0.02, 0.02, 0.002],
+                                  pos=[0, 0, WALL_FACE_M + 0.002 + margin_m], **contact)
+        physics = mjcf.Physics.from_mjcf_model(root)
+        wall_id = int(physics.bind(wall).element_id)
     wire.initialize_episode(physics, None)
     is_wire = np.zeros(physics.model.ngeom, bool)
     is_wire[physics.bind(wire.geoms).element_id] = True
@@ -120,7 +143,7 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
         robot.apply_action(physics, [1.0, 0.0])
         physics.step()
     is_wall = np.zeros(physics.model.ngeom, bool)
-    is_wall[physics.bind(wall).element_id] = True  # the guide channel is not the wall
+    is_wall[wall_id] = True  # the guide channel is not the wall
     contacts = cs_physics.wire_contacts(physics, is_wire, is_vessel_geom=is_wall)
     return WallPush(total_n=float(contacts.total_n), net_n=contacts.forces_n.sum(axis=0), contacts=int(contacts.count),
                     tip_end_m=float(physics.bind(wire.tip_site).xpos[2] + wire.radius_m))

@@ -41,10 +41,13 @@ class PhysicsSettings:
     noslip_iterations: int  # post-solve friction projection (0: off)
     noslip_tolerance: float  # 0: always run all noslip iterations
     sleep: bool  # MuJoCo's sleeping of trees at rest (option/flag sleep)
+    wall: str = "prisms"  # the vessel wall's representation (`Aorta(wall=...)`): "prisms" or "field"
 
     def apply(self, mjcf_root) -> None:
-        """Writes the settings into `mjcf_root.option` (a dm_control MJCF root)."""
+        """Writes the solver settings into `mjcf_root.option` (a dm_control MJCF root);
+        the wall is the aorta's to build (`tasks.build_task` passes it on)."""
         values = asdict(self)
+        values.pop("wall")
         sleep = values.pop("sleep")
         mjcf_root.option.set_attributes(**values)
         mjcf_root.option.flag.sleep = "enable" if sleep else "disable"
@@ -52,16 +55,19 @@ class PhysicsSettings:
 
 # `accurate`: what the scene compiled to before the settings were explicit (Newton with
 # MuJoCo's defaults, noslip as dm_control's arena set it); trajectories are bit-identical.
-# `fast` (issue 20's probe, about twice the speed in wall contact): PGS capped at 10
-# iterations, dense Jacobian, noslip off, sleep on. Rejected there: pyramidal cones
+# `fast_prisms` (issue 20's probe, about twice the speed in wall contact): PGS capped at
+# 10 iterations, dense Jacobian, noslip off, sleep on. Rejected there: pyramidal cones
 # (forces ~35% lower), condim 1, Newton at 3 iterations (diverged), tolerance 1e-3 (lost
-# contacts). Both keep the elliptic cones, implicitfast integrator and timestep set by
-# the arena and the wire.
+# contacts). `fast`: the same solver with the wall as a distance field
+# (`cathsim_dmc.wall_field`): collision took most of a `fast_prisms` step. All keep the
+# elliptic cones, implicitfast integrator and timestep set by the arena and the wire.
+_PGS = dict(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
+            jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True)
 PHYSICS_SETTINGS = {
     "accurate": PhysicsSettings(solver="Newton", iterations=100, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
                                 jacobian="auto", noslip_iterations=5, noslip_tolerance=0.0, sleep=False),
-    "fast": PhysicsSettings(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
-                            jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True),
+    "fast_prisms": PhysicsSettings(**_PGS, wall="prisms"),
+    "fast": PhysicsSettings(**_PGS, wall="field"),
 }
 # `fast` passed the fidelity gate (scripts/fidelity_gate.py; docs/model.md, "Solver settings").
 DEFAULT_PHYSICS = "fast"

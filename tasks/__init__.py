@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
+from cathsim_dmc.physics import DEFAULT_PHYSICS, physics_settings
 from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.registry import TARGETS, all_tasks
@@ -89,7 +90,8 @@ def build_task(
     follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m,
                              **{**contact, **start, **(robot or {})})
     # The wall goes into the compiled model directly (NavigationEnvironment; fast build).
-    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp, hulls_in_mjcf=False)
+    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp, hulls_in_mjcf=False,
+                wall=physics_settings(task_kwargs.get("physics") or DEFAULT_PHYSICS).wall)
     vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})
     return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)
 

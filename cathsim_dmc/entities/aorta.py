@@ -49,6 +49,9 @@ def moved_outward(pieces, distance_m: float) -> tuple:
     return tuple(moved)
 
 
+WALLS = ("prisms", "field")
+
+
 class Aorta(composer.Entity):
     """Vessel anatomy: wall collision pieces, one visual mesh, sites and centerlines."""
 
@@ -62,6 +65,7 @@ class Aorta(composer.Entity):
         name: str | None = None,
         hulls_in_mjcf: bool = True,
         contact_margin_m: float = 1e-3,  # see below: the seam artefact then needs a wire 1.45 mm deep
+        wall: str = "prisms",
     ):
         """Builds the anatomy.
 
@@ -94,7 +98,22 @@ class Aorta(composer.Entity):
             moved pieces' constraint surface follows the lumen within 0.2 mm (it is
             rounded at ridges, and a face moves back by less than the margin where its
             vertex normals lean off it). 0 keeps the pieces where the asset has them.
+          wall: how the wall meets the wire. "prisms": one convex MuJoCo geom per lumen
+            triangle (MuJoCo's own contact tests). "field": one SDF geom whose contacts
+            come from the lumen's signed distance, sampled every 0.5 mm, through a
+            compiled contact test (`cathsim_dmc.wall_field`; needs a C compiler once, and
+            `hulls_in_mjcf=False`). Both put the contact constraint on the lumen surface.
         """
+        if wall not in WALLS:
+            raise ValueError(f"wall={wall!r} is not a wall representation; choose one of {list(WALLS)}")
+        if wall == "field" and hulls_in_mjcf:
+            raise ValueError("wall='field' needs hulls_in_mjcf=False: its distance field goes into the compiled "
+                             "model through add_geoms (NavigationEnvironment does this)")
+        self.wall = wall
+        if wall == "field":
+            from cathsim_dmc import wall_field
+
+            wall_field.native()  # built and in MuJoCo's table before any model with this wall steps
         self._asset: AortaAsset = load_asset(resolve_asset(asset))
         self._mjcf_root = mjcf.RootElement(model=name or self._asset.name)
         root = self._mjcf_root
@@ -164,10 +183,38 @@ class Aorta(composer.Entity):
             for key, value in settings.items():
                 setattr(geom, key, value)
 
-        for i, hull in enumerate(self.wall_pieces):
-            add(spec.worldbody, f"hull{i}", hull, None, {**self._wall, **placement})
+        if self.wall == "field":
+            self._add_field(spec, prefix, placement)
+        else:
+            for i, hull in enumerate(self.wall_pieces):
+                add(spec.worldbody, f"hull{i}", hull, None, {**self._wall, **placement})
         # As in the MJCF path, the visual geom inherits the wall's settings but draws only.
         add(body, "lumen", self._asset.visual_vertices, self._asset.visual_faces, {**self._wall, **self._visual})
+
+    def _add_field(self, spec: mujoco.MjSpec, prefix: str, placement: dict) -> None:
+        """The wall as one static SDF geom in the world body, with its distance field in a
+        numeric field of the same name (world coordinates; see `cathsim_dmc.wall_field`)."""
+        from cathsim_dmc import wall_field
+
+        rotation = np.eye(3)
+        offset = np.zeros(3)
+        if placement:
+            mujoco.mju_quat2Mat(rotation.ravel(), np.asarray(placement["quat"], dtype=float))
+            offset = np.asarray(placement["pos"], dtype=float)
+        lumen = np.asarray([np.asarray(piece, dtype=float)[:3] for piece in self._asset.hulls]) @ rotation.T + offset
+        centre, outward, _ = self._open_end()
+        cut = (rotation @ centre + offset, rotation @ outward)
+        field = wall_field.build_field(lumen, shift_m=self.contact_margin_m, cut=cut)
+        spec.add_numeric(name=prefix + "wall", data=field, size=len(field))
+        # The geom's own shape only bounds it for MuJoCo's broadphase: a box around the wall.
+        lo = lumen.reshape(-1, 3).min(axis=0) - self.wall_thickness_m - self.contact_margin_m
+        hi = lumen.reshape(-1, 3).max(axis=0) + self.wall_thickness_m + self.contact_margin_m
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        mesh = spec.add_mesh(name=prefix + "wall")
+        mesh.uservert = corners.ravel()
+        geom = spec.worldbody.add_geom(name=prefix + "wall", type=mujoco.mjtGeom.mjGEOM_SDF, meshname=prefix + "wall")
+        for key, value in self._wall.items():
+            setattr(geom, key, value)
 
     @property
     def geoms_key(self) -> bytes:
@@ -176,12 +223,16 @@ class Aorta(composer.Entity):
         # The pieces as simulated (moved by the margin), so that a change in how they are
         # moved never reuses a stale compiled model.
         pieces = np.concatenate(self.wall_pieces) if self.wall_pieces else np.zeros((0, 3))
-        return b"".join([b"wall in worldbody", repr((self._wall, self._visual)).encode(), pieces.tobytes(),
+        wall = b"wall in worldbody"
+        if self.wall == "field":
+            from cathsim_dmc import wall_field
+
+            wall = b"field wall %r" % ((wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M, wall_field.FIELD_MAGIC),)
+        return b"".join([wall, repr((self._wall, self._visual)).encode(), pieces.tobytes(),
                          asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
 
     def initialize_episode(self, physics, random_state):
-        if not self.hulls_in_mjcf and mujoco.mj_name2id(
-                physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, self._prefix() + "hull0") < 0:
+        if not self.hulls_in_mjcf and len(self.wall_geom_ids(physics)) == 0:
             raise RuntimeError("Aorta(hulls_in_mjcf=False) has no wall in this physics: build the environment with "
                                "NavigationEnvironment, or call aorta.add_geoms on the scene's spec")
 
@@ -274,6 +325,9 @@ class Aorta(composer.Entity):
         """Geom ids of the wall pieces in `physics`, whichever way the wall was added."""
         model = physics.model.ptr
         prefix = self._prefix()
+        if self.wall == "field":
+            ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}wall")]
+            return np.asarray([i for i in ids if i >= 0], dtype=int)
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}hull{i}")
                for i in range(self._asset.hull_count)]
         return np.asarray([i for i in ids if i >= 0], dtype=int)
