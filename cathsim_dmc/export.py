@@ -16,6 +16,9 @@ MuJoCo's XML writer keeps 6 significant digits, so `scene.xml` is dm_control's o
 XML of the scene (17 digits) with the added meshes and geoms spliced in: the reloaded
 model matches the environment's in every number, not only to 6 digits.
 
+The wall is always exported as prisms, whatever the environment's physics setting: the
+distance-field wall of `physics=fast` needs this package's compiled contact test.
+
 The file also carries a keyframe `start`: the state after a seeded reset (wire at the
 entry, robot retracted), which `simulate` loads from its "Key" panel.
 """
@@ -72,7 +75,9 @@ def scene_spec(env) -> mujoco.MjSpec:
     root = task_root(env)
     spec = mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
     if not task.aorta.hulls_in_mjcf:
-        task.aorta.add_geoms(spec)
+        # The prism wall: the distance-field wall (physics=fast) needs this package's
+        # compiled contact test, which MuJoCo's simulate and other importers lack.
+        task.aorta.add_geoms(spec, wall="prisms")
     return spec
 
 

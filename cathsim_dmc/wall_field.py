@@ -56,10 +56,12 @@ def _libmujoco_path() -> str:
 
 
 def _compile(target: pathlib.Path) -> None:
-    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    wanted = os.environ.get("CC")
+    compiler = shutil.which(wanted) if wanted else (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang"))
     if not compiler:
-        raise NativeBuildError("the distance-field wall needs a C compiler (cc, gcc or clang; Debian: apt-get install "
-                               "gcc) to build its contact test; task.wall=prisms needs none")
+        found = f"CC={wanted!r} is not an executable" if wanted else "no cc, gcc or clang on PATH"
+        raise NativeBuildError(f"the distance-field wall (physics=fast) compiles its contact test once and needs a C "
+                               f"compiler ({found}; Debian: apt-get install gcc); physics=fast_prisms needs none")
     include = os.path.join(os.path.dirname(mujoco.__file__), "include")
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".so.tmp")

@@ -14,8 +14,8 @@ past the lumen surface and the mean total wall contact force over the steps (bot
 after each step, in an untimed run). Times are ratios only: absolute speeds depend on the
 machine and its load.
 
-Variants: `accurate` and `fast` (`cathsim_dmc.physics.PHYSICS_SETTINGS`, compiled
-through `tasks.load`), `accurate` with one of fast's options (`pgs10`: PGS at 10
+Variants: `accurate`, `fast_prisms` and `fast` (`cathsim_dmc.physics.PHYSICS_SETTINGS`,
+compiled through `tasks.load`; `fast` has the distance-field wall), `accurate` with one of fast's options (`pgs10`: PGS at 10
 iterations, `dense`: dense Jacobian, `noslip0`: no noslip, `sleep`: sleep on), and
 `wall_frame`: accurate with the wall in the aorta's attachment body, as before
 (the plain MJCF build, slow to build).
@@ -46,28 +46,43 @@ FAST_BUT = {  # fast with one setting changed
     "fast_pgs20": dict(iterations=20),
     "fast_pgs30": dict(iterations=30),
 }
-VARIANTS = ("accurate", "fast", *ONE_OPTION, *FAST_BUT, "wall_frame")
+VARIANTS = ("accurate", "fast_prisms", "fast", *ONE_OPTION, *FAST_BUT, "wall_frame")
+
+
+def masks(env) -> tuple:
+    """(wire geoms, wall geoms, tip site) of `env`'s model: the field wall's model
+    numbers its geoms differently from the prisms'."""
+    physics, task = env.physics, env.task
+    wire = np.zeros(physics.model.ngeom, dtype=bool)
+    wire[physics.bind(task.guidewire.geoms).element_id] = True
+    wall = np.zeros(physics.model.ngeom, dtype=bool)
+    wall[task.aorta.wall_geom_ids(physics)] = True
+    return wire, wall, int(physics.bind(task.guidewire.tip_site).element_id)
 
 
 def build_variants(names, task: str, aorta: str) -> tuple:
-    """({name: MjModel}, the accurate environment, which saves the states)."""
+    """({name: MjModel}, {name: masks}, the accurate environment, which saves the states)."""
     accurate = tasks.load(task, aorta, seed=0, physics="accurate")
-    models = {}
+    models, geoms = {}, {}
     for name in names:
+        geoms[name] = masks(accurate)
         if name == "accurate":
             models[name] = accurate.physics.model.ptr
-        elif name == "fast":
-            env = tasks.load(task, aorta, physics="fast")
+        elif name in ("fast", "fast_prisms"):
+            env = tasks.load(task, aorta, physics=name)
             models[name] = copy.copy(env.physics.model.ptr)
+            geoms[name] = masks(env)
         elif name in FAST_BUT:
             env = tasks.load(task, aorta, physics="fast")
             model = copy.copy(env.physics.model.ptr)
             for key, value in FAST_BUT[name].items():
                 setattr(model.opt, key, value)
             models[name] = model
+            geoms[name] = masks(env)
         elif name == "wall_frame":
             env = tasks.load(task, aorta, physics="accurate", aorta_options=dict(hulls_in_mjcf=True))
             models[name] = copy.copy(env.physics.model.ptr)
+            geoms[name] = masks(env)
         else:
             model = copy.copy(accurate.physics.model.ptr)  # options set at run time act as compiled ones
             for key, value in ONE_OPTION[name].items():
@@ -75,7 +90,7 @@ def build_variants(names, task: str, aorta: str) -> tuple:
                     value |= model.opt.enableflags
                 setattr(model.opt, key, value)
             models[name] = model
-    return models, accurate
+    return models, geoms, accurate
 
 
 def save_states(env, at_steps, action) -> list:
@@ -131,13 +146,7 @@ def main(argv=None) -> None:
                         help="the first is the baseline")
     args = parser.parse_args(argv)
 
-    models, env = build_variants(args.variants, args.task, args.aorta)
-    physics, task = env.physics, env.task
-    wire = np.zeros(physics.model.ngeom, dtype=bool)
-    wire[physics.bind(task.guidewire.geoms).element_id] = True
-    wall = np.zeros(physics.model.ngeom, dtype=bool)
-    wall[task.aorta.wall_geom_ids(physics)] = True
-    tip_site = int(physics.bind(task.guidewire.tip_site).element_id)
+    models, geoms, env = build_variants(args.variants, args.task, args.aorta)
     states = save_states(env, args.at, np.array(args.action))
     datas = {name: mujoco.MjData(model) for name, model in models.items()}
     baseline = args.variants[0]
@@ -148,7 +157,7 @@ def main(argv=None) -> None:
           "| mean wall force (N) | wall contacts |")
     print("|---|---|---|---|---|---|---|")
     for at, state in states:
-        seen = {name: observe(models[name], datas[name], state, args.steps, wire, wall, tip_site)
+        seen = {name: observe(models[name], datas[name], state, args.steps, *geoms[name])
                 for name in args.variants}
         times = {name: [] for name in args.variants}
         for repeat in range(args.repeats):

@@ -1,17 +1,18 @@
 #!/usr/bin/env bash
 # One-time set-up on a fresh machine (idempotent): Debian GL libraries for headless
-# rendering, a virtual environment in .venv, the CPU build of PyTorch, this package.
+# rendering and a C compiler (the distance-field wall's contact test is compiled on first
+# use), a virtual environment in .venv, the CPU build of PyTorch, this package.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-GL_PACKAGES="libegl1 libgl1-mesa-dri libopengl0 libosmesa6"
+DEBIAN_PACKAGES="libegl1 libgl1-mesa-dri libopengl0 libosmesa6 gcc libc6-dev"
 missing=""
-for pkg in $GL_PACKAGES; do
+for pkg in $DEBIAN_PACKAGES; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "ok installed" || missing="$missing $pkg"
 done
 if [ -n "$missing" ]; then
   if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
-  echo "installing GL libraries for headless rendering:$missing"
+  echo "installing Debian packages (headless GL, C compiler):$missing"
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
 fi

@@ -151,9 +151,11 @@ class Aorta(composer.Entity):
         entry = self._sites["entry"].full_identifier
         return entry[: -len("entry")]
 
-    def add_geoms(self, spec: mujoco.MjSpec) -> None:
+    def add_geoms(self, spec: mujoco.MjSpec, wall: str | None = None) -> None:
         """Adds the wall pieces and the visual mesh to `spec` (a spec of the compiled
-        scene that holds this aorta without them), named as `hulls_in_mjcf` names them."""
+        scene that holds this aorta without them), named as `hulls_in_mjcf` names them.
+        `wall` overrides the aorta's wall representation (`export` writes the prisms,
+        which MuJoCo alone can simulate)."""
         if self.hulls_in_mjcf:
             raise ValueError("this Aorta already has its wall in the MJCF model")
         prefix = self._prefix()
@@ -183,7 +185,7 @@ class Aorta(composer.Entity):
             for key, value in settings.items():
                 setattr(geom, key, value)
 
-        if self.wall == "field":
+        if (wall or self.wall) == "field":
             self._add_field(spec, prefix, placement)
         else:
             for i, hull in enumerate(self.wall_pieces):

@@ -18,7 +18,8 @@
 
    A capsule's axis is sampled every SAMPLE_SPACING_M; a contact is made at each end whose
    clearance is under the margin and at each interior local minimum deeper than both
-   ends, refined by a parabola through its neighbours, at most MAX_CONTACTS per capsule.
+   ends (by INTERIOR_DEPTH_M: a capsule lying flat has only its two end contacts),
+   refined by a parabola through its neighbours, at most MAX_CONTACTS per capsule.
    The reported distance is measured to the lumen moved out by `shift`, as the prisms
    are moved out by the contact margin, so MuJoCo's margin logic acts on the lumen.
 */
@@ -34,6 +35,7 @@
 #define SAMPLE_SPACING_M 1e-3
 #define MAX_SAMPLES 64
 #define MAX_CONTACTS 4
+#define INTERIOR_DEPTH_M 1e-5  /* an interior minimum counts if this much deeper than both ends */
 
 static mjfCollision original[mjNGEOMTYPES];
 static int installed = 0;
@@ -165,7 +167,7 @@ int cathsim_wall_collide(const mjModel* m, mjData* d, mjPreContact* con, int g1,
   if (n > 1) cand[ncand] = t[n - 1], depth[ncand++] = s[n - 1];
   mjtNum ends = n > 1 ? fmin(s[0], s[n - 1]) : s[0];
   for (int i = 1; i < n - 1; i++) {
-    if (!(s[i] < s[i - 1] && s[i] <= s[i + 1] && s[i] < ends)) continue;
+    if (!(s[i] < s[i - 1] && s[i] <= s[i + 1] && s[i] < ends - INTERIOR_DEPTH_M)) continue;
     mjtNum curvature = s[i - 1] - 2 * s[i] + s[i + 1];
     mjtNum step = t[1] - t[0];
     mjtNum offset = curvature > 0 ? 0.5 * (s[i - 1] - s[i + 1]) / curvature : 0;
