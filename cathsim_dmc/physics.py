@@ -69,7 +69,8 @@ PHYSICS_SETTINGS = {
     "fast_prisms": PhysicsSettings(**_PGS, wall="prisms"),
     "fast": PhysicsSettings(**_PGS, wall="field"),
 }
-# `fast` passed the fidelity gate (scripts/fidelity_gate.py; docs/model.md, "Solver settings").
+# The PGS settings passed the fidelity gate against `accurate` (2026-11-25), the field wall
+# against `fast_prisms` (2026-11-26): scripts/fidelity_gate.py; docs/model.md, "Solver settings".
 DEFAULT_PHYSICS = "fast"
 
 

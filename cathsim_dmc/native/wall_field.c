@@ -170,7 +170,8 @@ int cathsim_wall_collide(const mjModel* m, mjData* d, mjPreContact* con, int g1,
     if (!(s[i] < s[i - 1] && s[i] <= s[i + 1] && s[i] < ends - INTERIOR_DEPTH_M)) continue;
     mjtNum curvature = s[i - 1] - 2 * s[i] + s[i + 1];
     mjtNum step = t[1] - t[0];
-    mjtNum offset = curvature > 0 ? 0.5 * (s[i - 1] - s[i + 1]) / curvature : 0;
+    /* a neighbour outside the stored band (infinite) leaves the sample where it is */
+    mjtNum offset = curvature > 0 && isfinite(curvature) ? 0.5 * (s[i - 1] - s[i + 1]) / curvature : 0;
     if (offset > 0.5) offset = 0.5;
     if (offset < -0.5) offset = -0.5;
     cand[ncand] = t[i] + offset * step, depth[ncand++] = s[i];
