@@ -83,7 +83,12 @@ def native() -> ctypes.CDLL:
         digest = hashlib.sha256(_SOURCE.read_bytes() + mujoco.__version__.encode()).hexdigest()[:16]
         target = cache_root().parent / "native" / f"wall_field-{digest}.so"
         if not target.is_file():
-            _compile(target)
+            try:
+                _compile(target)
+            except OSError:  # a read-only cache folder: build in the temporary folder instead
+                target = pathlib.Path(tempfile.gettempdir()) / f"cathsim_dmc-{os.getuid()}" / target.name
+                if not target.is_file():
+                    _compile(target)
         lib = ctypes.CDLL(str(target))
         lib.cathsim_wall_install.argtypes = [ctypes.c_void_p]
         lib.cathsim_wall_install.restype = ctypes.c_int

@@ -146,6 +146,17 @@ def test_a_missing_compiler_is_one_clear_error(tmp_path):
     assert "no-such-cc" in result.stdout and "physics=fast_prisms" in result.stdout
 
 
+def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path):
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")  # the cache's folders cannot be made under it
+    env = dict(os.environ, CATHSIM_DMC_CACHE=str(blocked), TMPDIR=str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    code = "from cathsim_dmc import wall_field\nprint(wall_field.native()._name)"
+    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().startswith(str(tmp_path / "tmp"))
+
+
 def test_the_wire_moves_in_the_field_wall_as_in_the_prism_wall():
     """Full insertion with a slow turn, up the descending aorta into the arch: the wire
     stays in the vessel and ends near where it ends in the prism wall, pressing it about
