@@ -74,14 +74,19 @@ def _compile(target: pathlib.Path) -> None:
     os.replace(tmp, target)  # atomic: parallel test workers never load a partial file
 
 
+def source_digest() -> str:
+    """Identifies the compiled code (its source and MuJoCo's version): the library's file
+    name, and part of a compiled model's cache key, since the field is built by it."""
+    return hashlib.sha256(_SOURCE.read_bytes() + mujoco.__version__.encode()).hexdigest()[:16]
+
+
 def native() -> ctypes.CDLL:
     """The compiled contact test, built if needed and installed into MuJoCo's table."""
     global _native
     with _lock:
         if _native is not None:
             return _native
-        digest = hashlib.sha256(_SOURCE.read_bytes() + mujoco.__version__.encode()).hexdigest()[:16]
-        target = cache_root().parent / "native" / f"wall_field-{digest}.so"
+        target = cache_root().parent / "native" / f"wall_field-{source_digest()}.so"
         if not target.is_file():
             try:
                 _compile(target)

@@ -203,7 +203,11 @@ class Aorta(composer.Entity):
         if placement:
             mujoco.mju_quat2Mat(rotation.ravel(), np.asarray(placement["quat"], dtype=float))
             offset = np.asarray(placement["pos"], dtype=float)
-        lumen = np.asarray([np.asarray(piece, dtype=float)[:3] for piece in self._asset.hulls]) @ rotation.T + offset
+        pieces = [np.asarray(piece, dtype=float) for piece in self._asset.hulls]
+        if any(piece.shape != (6, 3) for piece in pieces):
+            raise ValueError(f"aorta {self.name!r}: wall='field' builds on the asset's prisms (a lumen triangle and "
+                             f"its outward copy), and this asset has other wall pieces; use wall='prisms'")
+        lumen = np.asarray([piece[:3] for piece in pieces]) @ rotation.T + offset
         centre, outward, _ = self._open_end()
         cut = (rotation @ centre + offset, rotation @ outward)
         field = wall_field.build_field(lumen, shift_m=self.contact_margin_m, cut=cut)
@@ -229,7 +233,8 @@ class Aorta(composer.Entity):
         if self.wall == "field":
             from cathsim_dmc import wall_field
 
-            wall = b"field wall %r" % ((wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M, wall_field.FIELD_MAGIC),)
+            wall = b"field wall %r %s" % ((wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M),
+                                          wall_field.source_digest().encode())
         return b"".join([wall, repr((self._wall, self._visual)).encode(), pieces.tobytes(),
                          asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
 
