@@ -236,15 +236,6 @@ def load_env(name, folders, gym: bool = False, task: str = "bca"):
         return tasks.load(task, aorta_of(name, folders), seed=0, physics="fast_prisms")
 
 
-def masks(env) -> tuple:
-    physics, task = env.physics, env.task
-    wire = np.zeros(physics.model.ngeom, dtype=bool)
-    wire[physics.bind(task.guidewire.geoms).element_id] = True
-    wall = np.zeros(physics.model.ngeom, dtype=bool)
-    wall[task.aorta.wall_geom_ids(physics)] = True
-    return wire, wall, int(physics.bind(task.guidewire.tip_site).element_id)
-
-
 def collision_states(model, data, state, steps, every=10) -> list:
     from physics_probe import STATE, start
 
@@ -260,7 +251,7 @@ def collision_states(model, data, state, steps, every=10) -> list:
 
 
 def probe(names, folders, args) -> list:
-    from physics_probe import observe, save_states, start
+    from physics_probe import masks, observe, save_states, start
 
     entries = {}
     for name in names:
