@@ -157,6 +157,26 @@ def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path):
     assert result.stdout.strip().startswith(str(tmp_path / "tmp"))
 
 
+def test_an_asset_without_prisms_is_refused(tmp_path):
+    """The field is built on the prisms' lumen triangles: an asset whose wall pieces are
+    other convex sets (here the first prism with its last point dropped) is refused."""
+    import shutil
+
+    from cathsim_dmc.entities import Aorta
+    from cathsim_dmc.paths import resolve_asset
+
+    folder = tmp_path / "odd"
+    shutil.copytree(resolve_asset("type1"), folder)
+    with np.load(folder / "collision.npz") as npz:
+        vertices, offsets = npz["vertices"], npz["hull_offsets"].copy()
+    vertices = np.delete(vertices, 5, axis=0)
+    offsets[1:] -= 1
+    np.savez(folder / "collision.npz", vertices=vertices, hull_offsets=offsets)
+    aorta = Aorta(asset=str(folder), hulls_in_mjcf=False, wall="field")
+    with pytest.raises(ValueError, match="has other wall pieces; use wall='prisms'"):
+        aorta.add_geoms(mujoco.MjSpec())
+
+
 def test_the_wire_moves_in_the_field_wall_as_in_the_prism_wall():
     """Full insertion with a slow turn, up the descending aorta into the arch: the wire
     stays in the vessel and ends near where it ends in the prism wall, pressing it about
