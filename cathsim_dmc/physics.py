@@ -55,22 +55,24 @@ class PhysicsSettings:
 
 # `accurate`: what the scene compiled to before the settings were explicit (Newton with
 # MuJoCo's defaults, noslip as dm_control's arena set it); trajectories are bit-identical.
-# `fast_prisms` (issue 20's probe, about twice the speed in wall contact): PGS capped at
+# `fast` (issue 20's probe, about twice the speed in wall contact): PGS capped at
 # 10 iterations, dense Jacobian, noslip off, sleep on. Rejected there: pyramidal cones
 # (forces ~35% lower), condim 1, Newton at 3 iterations (diverged), tolerance 1e-3 (lost
-# contacts). `fast`: the same solver with the wall as a distance field
-# (`cathsim_dmc.wall_field`): collision took most of a `fast_prisms` step. All keep the
-# elliptic cones, implicitfast integrator and timestep set by the arena and the wire.
+# contacts). `fast_field`: the same solver with the wall as a distance field
+# (`cathsim_dmc.wall_field`; collision took most of a `fast` step), 1.6-1.9x the
+# environment's speed; not the default: the default training recipe did worse under it
+# on three seeds (docs/model.md). All keep the elliptic cones, implicitfast integrator
+# and timestep set by the arena and the wire.
 _PGS = dict(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
             jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True)
 PHYSICS_SETTINGS = {
     "accurate": PhysicsSettings(solver="Newton", iterations=100, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
                                 jacobian="auto", noslip_iterations=5, noslip_tolerance=0.0, sleep=False),
-    "fast_prisms": PhysicsSettings(**_PGS, wall="prisms"),
-    "fast": PhysicsSettings(**_PGS, wall="field"),
+    "fast": PhysicsSettings(**_PGS, wall="prisms"),
+    "fast_field": PhysicsSettings(**_PGS, wall="field"),
 }
 # The PGS settings passed the fidelity gate against `accurate` (2026-11-25), the field wall
-# against `fast_prisms` (2026-11-26): scripts/fidelity_gate.py; docs/model.md, "Solver settings".
+# against `fast` (2026-11-26): scripts/fidelity_gate.py; docs/model.md, "Solver settings".
 DEFAULT_PHYSICS = "fast"
 
 

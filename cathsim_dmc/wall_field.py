@@ -60,8 +60,8 @@ def _compile(target: pathlib.Path) -> None:
     compiler = shutil.which(wanted) if wanted else (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang"))
     if not compiler:
         found = f"CC={wanted!r} is not an executable" if wanted else "no cc, gcc or clang on PATH"
-        raise NativeBuildError(f"the distance-field wall (physics=fast) compiles its contact test once and needs a C "
-                               f"compiler ({found}; Debian: apt-get install gcc); physics=fast_prisms needs none")
+        raise NativeBuildError(f"the distance-field wall (physics=fast_field) compiles its contact test once and needs a "
+                               f"C compiler ({found}; Debian: apt-get install gcc); physics=fast needs none")
     include = os.path.join(os.path.dirname(mujoco.__file__), "include")
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".so.tmp")

@@ -232,8 +232,8 @@ def load_env(name, folders, gym: bool = False, task: str = "bca"):
         if gym:
             from cathsim_dmc.gym import CathSimEnv
 
-            return CathSimEnv(task, aorta_of(name, folders), physics="fast_prisms")
-        return tasks.load(task, aorta_of(name, folders), seed=0, physics="fast_prisms")
+            return CathSimEnv(task, aorta_of(name, folders), physics="fast")
+        return tasks.load(task, aorta_of(name, folders), seed=0, physics="fast")
 
 
 def collision_states(model, data, state, steps, every=10) -> list:

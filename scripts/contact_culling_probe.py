@@ -63,7 +63,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200, help="raw mj_step calls per thread-pool run")
     args = parser.parse_args()
 
-    env = tasks.load("bca", args.aorta, seed=0, physics="fast_prisms")
+    env = tasks.load("bca", args.aorta, seed=0, physics="fast")
     env.reset()
     model, data = env.physics.model.ptr, env.physics.data.ptr
     mesh = lumen_mesh(model, data, f"{env.task.aorta.mjcf_model.model}/lumen")

@@ -14,8 +14,8 @@ past the lumen surface and the mean total wall contact force over the steps (bot
 after each step, in an untimed run). Times are ratios only: absolute speeds depend on the
 machine and its load.
 
-Variants: `accurate`, `fast_prisms` and `fast` (`cathsim_dmc.physics.PHYSICS_SETTINGS`,
-compiled through `tasks.load`; `fast` has the distance-field wall), `accurate` with one of fast's options (`pgs10`: PGS at 10
+Variants: `accurate`, `fast` and `fast_field` (`cathsim_dmc.physics.PHYSICS_SETTINGS`,
+compiled through `tasks.load`; `fast_field` has the distance-field wall), `accurate` with one of fast's options (`pgs10`: PGS at 10
 iterations, `dense`: dense Jacobian, `noslip0`: no noslip, `sleep`: sleep on), and
 `wall_frame`: accurate with the wall in the aorta's attachment body, as before
 (the plain MJCF build, slow to build).
@@ -46,7 +46,7 @@ FAST_BUT = {  # fast with one setting changed
     "fast_pgs20": dict(iterations=20),
     "fast_pgs30": dict(iterations=30),
 }
-VARIANTS = ("accurate", "fast_prisms", "fast", *ONE_OPTION, *FAST_BUT, "wall_frame")
+VARIANTS = ("accurate", "fast", "fast_field", *ONE_OPTION, *FAST_BUT, "wall_frame")
 
 
 def masks(env) -> tuple:
@@ -68,7 +68,7 @@ def build_variants(names, task: str, aorta: str) -> tuple:
         geoms[name] = masks(accurate)
         if name == "accurate":
             models[name] = accurate.physics.model.ptr
-        elif name in ("fast", "fast_prisms"):
+        elif name in ("fast", "fast_field"):
             env = tasks.load(task, aorta, physics=name)
             models[name] = copy.copy(env.physics.model.ptr)
             geoms[name] = masks(env)

@@ -68,7 +68,7 @@ def build_task(
     `noise_std` (grey levels) override the observation preset's image settings; `lao_deg`
     turns the top camera (images and videos) into a left anterior oblique view of that
     many degrees (negative: right anterior oblique; 0, the presets' default: AP).
-    `physics="fast"` (default) or `"accurate"` picks the solver settings (`Navigate`).
+    `physics="fast"` (default), `"fast_field"` or `"accurate"` picks the physics settings (`Navigate`).
     """
     validate(task, aorta, obs)
     check_options(**task_kwargs)

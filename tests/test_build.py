@@ -25,11 +25,10 @@ def rollout(env, n_steps=30):
 
 
 def test_fast_build_matches_the_mjcf_build_and_caches(models_dir):
-    # The prism wall: the MJCF path cannot carry the distance field (physics="fast").
-    stock = tasks.load("bca", "type1", seed=0, physics="fast_prisms", aorta_options=dict(hulls_in_mjcf=True))
-    fast = tasks.load("bca", "type1", seed=0, physics="fast_prisms")  # compiles and fills the cache
+    stock = tasks.load("bca", "type1", seed=0, aorta_options=dict(hulls_in_mjcf=True))
+    fast = tasks.load("bca", "type1", seed=0)  # compiles and fills the cache
     assert stock.task.aorta.hulls_in_mjcf and not fast.task.aorta.hulls_in_mjcf
-    cached = tasks.load("bca", "type1", seed=0, physics="fast_prisms")  # loads the MJB
+    cached = tasks.load("bca", "type1", seed=0)  # loads the MJB
     assert len(list(models_dir.glob("*.mjb"))) == 1
     for env in (fast, cached):
         m, s = env.physics.model, stock.physics.model
@@ -43,13 +42,13 @@ def test_fast_build_matches_the_mjcf_build_and_caches(models_dir):
 
 
 def test_the_field_wall_is_cached_and_refused_in_the_mjcf(models_dir):
-    fast = tasks.load("bca", "type1", seed=0)  # the field wall: compiles and fills the cache
-    cached = tasks.load("bca", "type1", seed=0)
+    fast = tasks.load("bca", "type1", seed=0, physics="fast_field")  # compiles and fills the cache
+    cached = tasks.load("bca", "type1", seed=0, physics="fast_field")
     assert len(list(models_dir.glob("*.mjb"))) == 1
     np.testing.assert_array_equal(cached.physics.model.numeric_data, fast.physics.model.numeric_data)
     np.testing.assert_array_equal(rollout(cached), rollout(fast))
     with pytest.raises(ValueError, match="use wall='prisms'"):
-        tasks.load("bca", "type1", aorta_options=dict(hulls_in_mjcf=True))
+        tasks.load("bca", "type1", physics="fast_field", aorta_options=dict(hulls_in_mjcf=True))
 
 
 def test_reset_does_not_recompile(models_dir):

@@ -81,7 +81,7 @@ def test_bench_prints_a_row_per_setting(tmp_path):
     assert result.returncode == 0, result.stderr
     rows = [line for line in result.stdout.splitlines() if line.startswith("| type1 | internal")]
     # One row per physics setting, side by side.
-    assert [row.split("|")[5].strip() for row in rows] == ["fast_prisms", "fast"]
+    assert [row.split("|")[5].strip() for row in rows] == ["fast", "fast_field"]
     assert all(float(row.split("|")[6]) > 0 for row in rows)
 
 

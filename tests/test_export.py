@@ -14,7 +14,7 @@ from shipped import aorta_params
 
 @pytest.mark.parametrize("aorta", aorta_params())
 def test_exported_scene_reloads_and_steps(aorta, tmp_path):
-    env = tasks.load("bca", aorta, seed=0, physics="fast_prisms")  # the wall export writes
+    env = tasks.load("bca", aorta, seed=0)
     env.reset()
     scene = export_scene(env, tmp_path / aorta)
     original = env.physics.model.ptr
@@ -46,18 +46,18 @@ def test_exported_scene_reloads_and_steps(aorta, tmp_path):
 
 
 def test_the_distance_field_wall_exports_as_prisms(tmp_path):
-    """MuJoCo alone cannot simulate the field wall (`physics=fast`): its export is the
-    prism wall's, file for file."""
+    """MuJoCo alone cannot simulate the field wall (`physics=fast_field`): its export is
+    the prism wall's, file for file."""
     scenes = {}
-    for physics in ("fast", "fast_prisms"):
+    for physics in ("fast_field", "fast"):
         env = tasks.load("lcca", "type1", seed=0, physics=physics)
         env.reset()
         scenes[physics] = export_scene(env, tmp_path / physics)
         env.close()
-    assert scenes["fast"].read_text() == scenes["fast_prisms"].read_text()
-    files = sorted(p.name for p in (tmp_path / "fast" / "meshes").iterdir())
-    assert files == sorted(p.name for p in (tmp_path / "fast_prisms" / "meshes").iterdir())
-    assert all((tmp_path / "fast" / "meshes" / f).read_bytes() == (tmp_path / "fast_prisms" / "meshes" / f).read_bytes()
+    assert scenes["fast_field"].read_text() == scenes["fast"].read_text()
+    files = sorted(p.name for p in (tmp_path / "fast_field" / "meshes").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "fast" / "meshes").iterdir())
+    assert all((tmp_path / "fast_field" / "meshes" / f).read_bytes() == (tmp_path / "fast" / "meshes" / f).read_bytes()
                for f in files)
 
 

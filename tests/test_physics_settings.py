@@ -1,7 +1,7 @@
 """Physics settings (`tasks.load(physics=...)`): each reaches the compiled model, `fast` is
 the default, `accurate` is the model as it was before the settings were explicit, `fast`
 keeps the wire in the vessel; the wall in the world body and the cheaper contact reads
-change no result; `fast` builds the distance-field wall, the others the prisms."""
+change no result; `fast_field` builds the distance-field wall, the others the prisms."""
 
 import mujoco
 import numpy as np
@@ -33,7 +33,7 @@ def test_fast_is_the_default_and_accurate_the_model_as_before():
     assert _options(accurate) == {k: int(v) if not isinstance(v, float) else v for k, v in BEFORE.items()}
 
 
-@pytest.mark.parametrize("name", ["accurate", "fast_prisms", "fast"])
+@pytest.mark.parametrize("name", ["accurate", "fast", "fast_field"])
 def test_each_setting_reaches_the_compiled_model(name):
     settings = cs_physics.PHYSICS_SETTINGS[name]
     env = tasks.load("bca", "type1", physics=name)
@@ -63,10 +63,10 @@ def test_each_setting_reaches_the_compiled_model(name):
 def test_an_unknown_setting_is_one_value_error_naming_the_choices(load):
     with pytest.raises(ValueError) as raised:
         load()
-    assert str(raised.value) == "physics='quick' is not a physics setting; choose one of ['accurate', 'fast_prisms', 'fast']"
+    assert str(raised.value) == "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']"
 
 
-@pytest.mark.parametrize("name", ["accurate", "fast_prisms"])
+@pytest.mark.parametrize("name", ["accurate", "fast"])
 def test_the_wall_in_the_world_body_gives_the_same_trajectory(name):
     """The environment puts the wall pieces into the world body; the plain MJCF path
     leaves them in the aorta's attachment body. Same contacts, same trajectory, bit for bit."""
@@ -91,7 +91,7 @@ def test_the_wall_in_the_world_body_gives_the_same_trajectory(name):
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
 
 
-@pytest.fixture(scope="module", params=["accurate", "fast_prisms", "fast"])
+@pytest.fixture(scope="module", params=["accurate", "fast", "fast_field"])
 def env_in_the_arch(request):
     env = CathSimEnv(task="bca", aorta="type1", obs="internal", physics=request.param)
     observation, _ = env.reset(seed=0)

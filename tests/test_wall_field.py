@@ -1,4 +1,4 @@
-"""The distance-field wall (`cathsim_dmc.wall_field`, physics `fast`): the sampled field
+"""The distance-field wall (`cathsim_dmc.wall_field`, physics `fast_field`): the sampled field
 against analytic distances, the compiled contact test against known geometry, MuJoCo's
 own SDF contacts left alone, and the aorta's wire against the prism wall's."""
 
@@ -143,7 +143,7 @@ def test_a_missing_compiler_is_one_clear_error(tmp_path):
     code = "from cathsim_dmc import wall_field\ntry:\n    wall_field.native()\nexcept wall_field.NativeBuildError as e:\n    print(e)"
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert "no-such-cc" in result.stdout and "physics=fast_prisms" in result.stdout
+    assert "no-such-cc" in result.stdout and "physics=fast needs none" in result.stdout
 
 
 def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path):
@@ -182,7 +182,7 @@ def test_the_wire_moves_in_the_field_wall_as_in_the_prism_wall():
     stays in the vessel and ends near where it ends in the prism wall, pressing it about
     as hard (the field follows the lumen; the moved prisms round it off by up to 0.2 mm)."""
     ends, forces = {}, {}
-    for setting in ("fast_prisms", "fast"):
+    for setting in ("fast", "fast_field"):
         env = CathSimEnv(task="bca", aorta="type1", obs="internal", physics=setting)
         env.reset(seed=0)
         forces[setting] = []
@@ -193,5 +193,5 @@ def test_the_wire_moves_in_the_field_wall_as_in_the_prism_wall():
         assert env.task.containment.contains(env.task.wire_points_m(env.physics)).all()
         ends[setting] = np.asarray(info["tip_position_m"])
         env.close()
-    assert np.linalg.norm(ends["fast"] - ends["fast_prisms"]) < 0.005
-    assert np.mean(forces["fast"]) == pytest.approx(np.mean(forces["fast_prisms"]), rel=0.3)
+    assert np.linalg.norm(ends["fast_field"] - ends["fast"]) < 0.005
+    assert np.mean(forces["fast_field"]) == pytest.approx(np.mean(forces["fast"]), rel=0.3)

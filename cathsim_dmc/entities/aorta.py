@@ -107,9 +107,9 @@ class Aorta(composer.Entity):
         if wall not in WALLS:
             raise ValueError(f"wall={wall!r} is not a wall representation; choose one of {list(WALLS)}")
         if wall == "field" and hulls_in_mjcf:
-            raise ValueError("wall='field' (the default physics, 'fast') needs hulls_in_mjcf=False: its distance "
+            raise ValueError("wall='field' (physics='fast_field') needs hulls_in_mjcf=False: its distance "
                              "field goes into the compiled model through add_geoms (NavigationEnvironment does this); "
-                             "for the wall in the MJCF model use wall='prisms' (physics='fast_prisms')")
+                             "for the wall in the MJCF model use wall='prisms' (physics='fast')")
         self.wall = wall
         if wall == "field":
             from cathsim_dmc import wall_field
