@@ -35,7 +35,9 @@ AIM_LOOKAHEAD_RADII = 1.5
 # the look-ahead across the shaft); straight ahead, the bend's direction does not matter.
 AIM_FULL_OFF_AXIS = 0.5
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
-ACTION_EXPECTED = "shape (2,), finite, [insertion, rotation] in [-1, 1] (values outside are clipped)"
+def expected_action(names=("insertion", "rotation")) -> str:
+    """What an action with entries `names` must be (the error messages' "expected ...")."""
+    return f"shape ({len(names)},), finite, [{', '.join(names)}] in [-1, 1] (values outside are clipped)"
 
 
 def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
@@ -688,8 +690,7 @@ class NavigationEnvironment(composer.Environment):
 
 def validated_action(action, names=("insertion", "rotation")) -> np.ndarray:
     """`action` as a float64 array of shape (len(names),); ValueError naming the bad value otherwise."""
-    expected = (ACTION_EXPECTED if len(names) == 2 else
-                f"shape ({len(names)},), finite, [{', '.join(names)}] in [-1, 1] (values outside are clipped)")
+    expected = expected_action(names)
     try:
         raw = np.asarray(action)
         if raw.dtype.kind not in "iufO":

@@ -219,41 +219,35 @@ double cathsim_wall_distance(const double* raw, const double* p) {
 
 /* ---------------------------------------------------------------- building the field */
 
+/* q = from + t * dir (3-vectors). */
+static void point_along(double* q, const double* from, const double* dir, double t) {
+  for (int i = 0; i < 3; i++) q[i] = from[i] + t * dir[i];
+}
+
+static double dot3(const double* u, const double* v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
+
 /* Closest point on triangle (a, b, c) to p (Ericson, Real-Time Collision Detection 5.1.5).
    `feature`: 0 face, 1-3 vertex a/b/c, 4 edge ab, 5 edge bc, 6 edge ca. */
 static void closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
                                 double* q, int* feature) {
-  double ab[3], ac[3], ap[3], bp[3], cp[3];
-  for (int i = 0; i < 3; i++) ab[i] = b[i] - a[i], ac[i] = c[i] - a[i], ap[i] = p[i] - a[i];
-  double d1 = ab[0] * ap[0] + ab[1] * ap[1] + ab[2] * ap[2];
-  double d2 = ac[0] * ap[0] + ac[1] * ap[1] + ac[2] * ap[2];
-  if (d1 <= 0 && d2 <= 0) { memcpy(q, a, 3 * sizeof(double)); *feature = 1; return; }
-  for (int i = 0; i < 3; i++) bp[i] = p[i] - b[i];
-  double d3 = ab[0] * bp[0] + ab[1] * bp[1] + ab[2] * bp[2];
-  double d4 = ac[0] * bp[0] + ac[1] * bp[1] + ac[2] * bp[2];
-  if (d3 >= 0 && d4 <= d3) { memcpy(q, b, 3 * sizeof(double)); *feature = 2; return; }
+  double ab[3], ac[3], bc[3], ap[3], bp[3], cp[3];
+  for (int i = 0; i < 3; i++) {
+    ab[i] = b[i] - a[i], ac[i] = c[i] - a[i], bc[i] = c[i] - b[i];
+    ap[i] = p[i] - a[i], bp[i] = p[i] - b[i], cp[i] = p[i] - c[i];
+  }
+  double d1 = dot3(ab, ap), d2 = dot3(ac, ap);
+  if (d1 <= 0 && d2 <= 0) { point_along(q, a, ab, 0), *feature = 1; return; }
+  double d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+  if (d3 >= 0 && d4 <= d3) { point_along(q, b, ab, 0), *feature = 2; return; }
   double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-    double v = d1 / (d1 - d3);
-    for (int i = 0; i < 3; i++) q[i] = a[i] + v * ab[i];
-    *feature = 4;
-    return;
-  }
-  for (int i = 0; i < 3; i++) cp[i] = p[i] - c[i];
-  double d5 = ab[0] * cp[0] + ab[1] * cp[1] + ab[2] * cp[2];
-  double d6 = ac[0] * cp[0] + ac[1] * cp[1] + ac[2] * cp[2];
-  if (d6 >= 0 && d5 <= d6) { memcpy(q, c, 3 * sizeof(double)); *feature = 3; return; }
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) { point_along(q, a, ab, d1 / (d1 - d3)), *feature = 4; return; }
+  double d5 = dot3(ab, cp), d6 = dot3(ac, cp);
+  if (d6 >= 0 && d5 <= d6) { point_along(q, c, ab, 0), *feature = 3; return; }
   double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-    double w = d2 / (d2 - d6);
-    for (int i = 0; i < 3; i++) q[i] = a[i] + w * ac[i];
-    *feature = 6;
-    return;
-  }
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) { point_along(q, a, ac, d2 / (d2 - d6)), *feature = 6; return; }
   double va = d3 * d6 - d5 * d4;
   if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    for (int i = 0; i < 3; i++) q[i] = b[i] + w * (c[i] - b[i]);
+    point_along(q, b, bc, (d4 - d3) / ((d4 - d3) + (d5 - d6)));
     *feature = 5;
     return;
   }
@@ -263,29 +257,25 @@ static void closest_on_triangle(const double* p, const double* a, const double* 
   *feature = 0;
 }
 
-static void node_range(const double* lo, const double* hi, const double* origin, double h,
-                       const int* count, int* first, int* last) {
+/* The node index range [first, last] (per axis) of triangle v's box grown by `band`. */
+static void triangle_nodes(const double* v, double band, const double* origin, double h, const int* nb,
+                           int* first, int* last) {
   for (int a = 0; a < 3; a++) {
-    first[a] = (int)ceil((lo[a] - origin[a]) / h);
-    last[a] = (int)floor((hi[a] - origin[a]) / h);
+    double lo = fmin(v[a], fmin(v[3 + a], v[6 + a])) - band;
+    double hi = fmax(v[a], fmax(v[3 + a], v[6 + a])) + band;
+    first[a] = (int)ceil((lo - origin[a]) / h);
+    last[a] = (int)floor((hi - origin[a]) / h);
     if (first[a] < 0) first[a] = 0;
-    if (last[a] > count[a] - 1) last[a] = count[a] - 1;
+    if (last[a] > nb[a] * BLOCK - 1) last[a] = nb[a] * BLOCK - 1;
   }
 }
 
 /* Marks (index = 1) every block holding a node within `band` of a triangle's box. */
 void cathsim_wall_mark_blocks(int ntri, const double* tri, double h, const double* origin,
                               const int* nb, double band, double* index) {
-  int count[3] = {nb[0] * BLOCK, nb[1] * BLOCK, nb[2] * BLOCK};
   for (int t = 0; t < ntri; t++) {
-    const double* v = tri + 9 * t;
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; a++) {
-      lo[a] = fmin(v[a], fmin(v[3 + a], v[6 + a])) - band;
-      hi[a] = fmax(v[a], fmax(v[3 + a], v[6 + a])) + band;
-    }
     int first[3], last[3];
-    node_range(lo, hi, origin, h, count, first, last);
+    triangle_nodes(tri + 9 * t, band, origin, h, nb, first, last);
     for (int k = first[2] / BLOCK; k <= last[2] / BLOCK; k++)
       for (int j = first[1] / BLOCK; j <= last[1] / BLOCK; j++)
         for (int i = first[0] / BLOCK; i <= last[0] / BLOCK; i++)
@@ -301,17 +291,11 @@ void cathsim_wall_mark_blocks(int ntri, const double* tri, double h, const doubl
 void cathsim_wall_fill(int ntri, const double* tri, const double* normals, double h,
                        const double* origin, const int* nb, double band, const double* index,
                        const double* cut, double* data, double* best) {
-  int count[3] = {nb[0] * BLOCK, nb[1] * BLOCK, nb[2] * BLOCK};
   for (int t = 0; t < ntri; t++) {
     const double* v = tri + 9 * t;
     const double* nrm = normals + 21 * t;
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; a++) {
-      lo[a] = fmin(v[a], fmin(v[3 + a], v[6 + a])) - band;
-      hi[a] = fmax(v[a], fmax(v[3 + a], v[6 + a])) + band;
-    }
     int first[3], last[3];
-    node_range(lo, hi, origin, h, count, first, last);
+    triangle_nodes(v, band, origin, h, nb, first, last);
     for (int k = first[2]; k <= last[2]; k++)
       for (int j = first[1]; j <= last[1]; j++)
         for (int i = first[0]; i <= last[0]; i++) {
