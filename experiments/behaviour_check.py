@@ -1,0 +1,124 @@
+"""Record, then compare, the actions and rewards of fixed-seed runs: a refactoring must
+leave them identical to the bit.
+
+    python experiments/behaviour_check.py record before.npz     # on the old commit
+    python experiments/behaviour_check.py record after.npz      # on the new one
+    python experiments/behaviour_check.py compare before.npz after.npz
+
+What is recorded:
+
+* one expert episode (seed 0, BCA, `internal` observations, default physics) on every
+  shipped aorta: every action and reward;
+* one 300-step `cathsim-train` run (seed 0, the default recipe with SAC updates from step
+  100, a periodic evaluation every 100 steps and a 2-episode final report): every action
+  and reward of every environment step in the process (the expert's demonstrations, the
+  training steps, the periodic and the final evaluations).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+TRAIN_OVERRIDES = [
+    "task=bca", "aorta=type1", "seed=0", "trainer.total_timesteps=300", "algo.learning_starts=100",
+    "trainer.eval_every=100", "trainer.eval_episodes=1", "trainer.final_eval_episodes=2",
+    "trainer.video=false", "trainer.progress_bar=false",
+]
+
+
+def expert_episodes() -> dict:
+    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.paths import available_aortas
+    from cathsim_dmc.policies import make_policy
+
+    arrays = {}
+    for aorta in available_aortas():
+        env = CathSimEnv(task="bca", aorta=aorta, obs="internal")
+        policy = make_policy("expert", seed=0)
+        observation, _ = env.reset(seed=0)
+        actions, rewards = [], []
+        done = False
+        while not done:
+            action = np.asarray(policy(observation, env), dtype=np.float64)
+            observation, reward, terminated, truncated, _ = env.step(action)
+            actions.append(action)
+            rewards.append(reward)
+            done = terminated or truncated
+        env.close()
+        arrays[f"expert/{aorta}/actions"] = np.array(actions)
+        arrays[f"expert/{aorta}/rewards"] = np.array(rewards, dtype=np.float64)
+        print(f"expert {aorta}: {len(rewards)} steps, return {sum(rewards):.6f}", flush=True)
+    return arrays
+
+
+def training_run() -> dict:
+    """Runs cathsim-train in this process; every CathSimEnv.step is recorded."""
+    from cathsim_dmc import gym as cs_gym
+    from cathsim_dmc.cli import train as cli_train
+
+    actions, rewards = [], []
+    original_step = cs_gym.CathSimEnv.step
+
+    def recording_step(self, action):
+        result = original_step(self, action)
+        actions.append(np.asarray(action, dtype=np.float64).copy())
+        rewards.append(float(result[1]))
+        return result
+
+    cs_gym.CathSimEnv.step = recording_step
+    argv = sys.argv
+    with tempfile.TemporaryDirectory() as run_dir:
+        sys.argv = ["cathsim-train", *TRAIN_OVERRIDES, f"hydra.run.dir={run_dir}"]
+        try:
+            cli_train.main()
+        finally:
+            sys.argv = argv
+            cs_gym.CathSimEnv.step = original_step
+    print(f"training run: {len(rewards)} environment steps, return {sum(rewards):.6f}", flush=True)
+    return {"train/actions": np.array(actions), "train/rewards": np.array(rewards, dtype=np.float64)}
+
+
+def compare(before: Path, after: Path) -> int:
+    a, b = np.load(before), np.load(after)
+    differ = 0
+    for key in sorted(set(a.files) | set(b.files)):
+        if key not in a.files or key not in b.files:
+            print(f"{key}: only in {'after' if key not in a.files else 'before'}")
+            differ += 1
+        elif a[key].shape != b[key].shape or a[key].tobytes() != b[key].tobytes():
+            print(f"{key}: differs (shapes {a[key].shape} and {b[key].shape})")
+            differ += 1
+        else:
+            print(f"{key}: identical ({a[key].shape[0]} steps)")
+    print("bit-identical" if not differ else f"{differ} arrays differ")
+    return 1 if differ else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    record = sub.add_parser("record")
+    record.add_argument("out", type=Path)
+    record.add_argument("--only", choices=("expert", "train"))
+    comp = sub.add_parser("compare")
+    comp.add_argument("before", type=Path)
+    comp.add_argument("after", type=Path)
+    args = parser.parse_args()
+    if args.command == "compare":
+        return compare(args.before, args.after)
+    arrays = {}
+    if args.only in (None, "expert"):
+        arrays.update(expert_episodes())
+    if args.only in (None, "train"):
+        arrays.update(training_run())
+    np.savez(args.out, **arrays)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
