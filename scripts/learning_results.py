@@ -47,27 +47,34 @@ def run_dir(root: Path, variant: str, task: str, seed: int) -> Path:
     return root / variant / task / f"seed{seed}"
 
 
-def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
-          save_replay_buffer: bool = False) -> None:
-    folder = run_dir(root, variant, task, seed)
-    overrides, budget = VARIANTS[variant]
+def new_run_overrides(variant: str, task: str, seed: int, eval_every: int, budget: int,
+                      save_replay_buffer: bool = False) -> list:
+    """The cathsim-train overrides of a fresh run of `variant` on `task` ("bca-type1")."""
+    overrides, _ = VARIANTS[variant]
     target, aorta = task.split("-", 1)
-    budget = steps or budget
-    last = folder / "checkpoints" / "last.zip"
-    # A finished run is continued when asked for more steps than it took.
-    if (folder / "eval" / "metrics.json").is_file() and not (last.is_file() and checkpoint_step(last) < budget):
-        print(f"done already: {folder}")
-        return
     common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
               f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
               "trainer.progress_bar=false", "trainer.video=false"]
     if save_replay_buffer:
         # With each checkpoint, so a run cut short resumes with the transitions it had.
         common.append("trainer.save_replay_buffer=true")
+    return [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common]
+
+
+def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
+          save_replay_buffer: bool = False) -> None:
+    folder = run_dir(root, variant, task, seed)
+    budget = steps or VARIANTS[variant][1]
+    last = folder / "checkpoints" / "last.zip"
+    # A finished run is continued when asked for more steps than it took.
+    if (folder / "eval" / "metrics.json").is_file() and not (last.is_file() and checkpoint_step(last) < budget):
+        print(f"done already: {folder}")
+        return
     if last.is_file():
         args = [f"resume={folder}", f"trainer.total_timesteps={budget}", f"hydra.run.dir={folder}"]
     else:
-        args = [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common, f"hydra.run.dir={folder}"]
+        args = [*new_run_overrides(variant, task, seed, eval_every, budget, save_replay_buffer),
+                f"hydra.run.dir={folder}"]
     print(f"training {variant} {task} seed {seed}: {' '.join(args)}", flush=True)
     t0 = time.time()
     subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], check=True)
