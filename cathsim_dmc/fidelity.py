@@ -1,6 +1,6 @@
 """Physical checks of the model, each a measurement under a chosen solver setting.
 
-The same functions back the tests (which assert on them) and `scripts/fidelity_gate.py`
+The same functions back the tests (which assert on them) and `experiments/fidelity_gate.py`
 (which prints them side by side for every setting in `physics.PHYSICS_SETTINGS`), so a
 solver setting is judged by exactly what the tests check:
 

@@ -72,7 +72,7 @@ PHYSICS_SETTINGS = {
     "fast_field": PhysicsSettings(**_PGS, wall="field"),
 }
 # The PGS settings passed the fidelity gate against `accurate` (2026-11-25), the field wall
-# against `fast` (2026-11-26): scripts/fidelity_gate.py; docs/model.md, "Solver settings".
+# against `fast` (2026-11-26): experiments/fidelity_gate.py; docs/model.md, "Solver settings".
 DEFAULT_PHYSICS = "fast"
 
 

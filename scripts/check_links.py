@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Check the relative links and images of the project's Markdown files.
 
-    python scripts/check_links.py            # README.md, docs/*.md, assets/*/README.md
+    python scripts/check_links.py            # README.md, docs/*.md, assets/*/README.md, experiments/README.md
     python scripts/check_links.py FILE...    # only these
 
 A link `[text](target)` or image `![alt](target)` with a relative target must name an
@@ -30,7 +30,8 @@ EXTERNAL = ("http://", "https://", "mailto:", "ftp://")
 
 def markdown_files(root: pathlib.Path = ROOT) -> List[pathlib.Path]:
     """The Markdown files whose links are checked."""
-    files = [root / "README.md", *sorted((root / "docs").glob("*.md")), *sorted((root / "assets").glob("*/README.md"))]
+    files = [root / "README.md", *sorted((root / "docs").glob("*.md")), *sorted((root / "assets").glob("*/README.md")),
+             root / "experiments" / "README.md"]
     return [f for f in files if f.is_file()]
 
 

@@ -1,7 +1,7 @@
-"""Learning curves of cathsim-train variants, and the table in docs/learning.md.
+"""Learning curves of cathsim-train variants, and the results tables of docs/training.md.
 
     python scripts/learning_results.py run  --variants demos_internal --tasks bca-type1 --seeds 0 1 2
-    python scripts/learning_results.py report --out docs/learning.md --plot docs/learning_curves.png
+    python scripts/learning_results.py report --out table.md --plot curves.png
 
 `run` trains each (variant, task, seed) that has no finished run under --root (a run is
 finished when its eval/metrics.json exists and it took --steps; an interrupted one, or a
@@ -27,57 +27,16 @@ from cathsim_dmc.rl.train import checkpoint_step
 DEMOS = ["demos=expert"]
 # demos=expert is the training default: the variants without demonstrations must say so.
 NO_DEMOS = ["demos=none"]
-# name -> (Hydra overrides, step budget)
+# name -> (Hydra overrides, step budget). Each variant produces a results table of docs/training.md.
 VARIANTS = {
-    "paper_internal": (["obs=internal", "algo=sac", "reward=euclidean", *NO_DEMOS], 100_000),
-    "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *NO_DEMOS], 100_000),
-    # Without demonstrations, the aim shaping pays for turning the bend towards the path,
-    # into the target too: tuned_internal's BCA seed 2 passed the target 5 mm off and never
-    # learned the end game (docs/learning.md, session 12).
-    "tuned_aim_internal": (["obs=internal", "algo=sac_tuned", "reward=aim", *NO_DEMOS], 100_000),
-    "demos_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS], 20_000),
-    # The robot stops at the target's centerline length + 20 mm (task.insertion_limit_margin_m).
-    "demos_limit_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
-                              "task.insertion_limit_margin_m=0.02"], 20_000),
-    # Progress plus aim shaping (reward=aim): turning the bend towards the path is paid for.
-    "demos_aim_internal": (["obs=internal", "algo=sac_tuned", "reward=aim", *DEMOS], 20_000),
-    "demos_bc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
-                           "demos.bc_filter=q"], 20_000),
-    "demos_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
-                              "demos.bc_filter=none"], 20_000),
-    "demos_bc2_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=2.0",
-                            "demos.bc_filter=none"], 20_000),
-    "demos_slowactor_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
-                                  "algo.actor_learning_rate_scale=0.3"], 20_000),
-    "demos_300_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.episodes=300",
-                            "demos.capacity=40000"], 20_000),
-    "demos_600_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.episodes=600",
-                            "demos.capacity=80000"], 20_000),
-    "demos_nobc_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0"],
-                            20_000),
-    "demos_bcslow_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
-                               "demos.bc_filter=q", "algo.actor_learning_rate_scale=0.3"], 20_000),
-    "demos_takeover_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS, "demos.bc_weight=0.5",
-                                 "demos.bc_filter=q", "demos.takeover_rounds=3", "demos.takeover_episodes=10",
-                                 "demos.takeover_max_student_steps=150"], 20_000),
-    # The online phase starts warm: the pre-trained actor acts and only the critic learns
-    # for the first 2,000 steps (demos.warm_start_steps).
-    "demos_warm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
-                             "demos.warm_start_steps=2000"], 20_000),
-    # Today's recipe (the unfiltered cloning term) with three rounds of takeover
-    # demonstrations: the expert finishes from where the pre-trained actor has taken the
-    # wire, which on the LCCA is often towards a wrong branch. Since session 15 the LCCA's
-    # default (conf/demos_for_task/expert_lcca.yaml), so demos_internal's LCCA runs have it too.
-    "demos_takeover_bcall_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
-                                       "demos.takeover_rounds=3", "demos.takeover_episodes=20",
-                                       "demos.takeover_max_student_steps=150"], 20_000),
-    # best.zip chosen on 10 + 20 episodes when an evaluation ties or beats it
-    # (trainer.confirm_episodes): the LCCA's 10-episode selections were optimistic.
-    "demos_confirm_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS,
-                                "trainer.confirm_episodes=20"], 20_000),
+    # The default recipe (conf/train.yaml's defaults, spelled out) at its default budget:
+    # the current results table.
+    "demos_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS], 8_000),
+    # The same recipe on the image observations (the ENN).
     "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
                    "algo.share_features_extractor=true", *DEMOS], 50_000),
-    "paper_pixels": (["obs=pixels", "algo=sac_cpu", "reward=euclidean", *NO_DEMOS], 100_000),
+    # SAC without demonstrations, which needs about 100k steps to learn the task.
+    "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *NO_DEMOS], 100_000),
 }
 TASKS = ("bca-type1", "lcca-type1", "bca-type2")
 SUCCESS_AIM = 0.9
@@ -88,27 +47,34 @@ def run_dir(root: Path, variant: str, task: str, seed: int) -> Path:
     return root / variant / task / f"seed{seed}"
 
 
+def new_run_overrides(variant: str, task: str, seed: int, eval_every: int, budget: int,
+                      save_replay_buffer: bool = False) -> list:
+    """The cathsim-train overrides of a fresh run of `variant` on `task` ("bca-type1")."""
+    overrides, _ = VARIANTS[variant]
+    target, aorta = task.split("-", 1)
+    common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
+              f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
+              "trainer.progress_bar=false", "trainer.video=false"]
+    if save_replay_buffer:
+        # With each checkpoint, so a run cut short resumes with the transitions it had.
+        common.append("trainer.save_replay_buffer=true")
+    return [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common]
+
+
 def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
           save_replay_buffer: bool = False) -> None:
     folder = run_dir(root, variant, task, seed)
-    overrides, budget = VARIANTS[variant]
-    target, aorta = task.split("-", 1)
-    budget = steps or budget
+    budget = steps or VARIANTS[variant][1]
     last = folder / "checkpoints" / "last.zip"
     # A finished run is continued when asked for more steps than it took.
     if (folder / "eval" / "metrics.json").is_file() and not (last.is_file() and checkpoint_step(last) < budget):
         print(f"done already: {folder}")
         return
-    common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
-              f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
-              "trainer.progress_bar=false", "trainer.video=false"]
-    if save_replay_buffer:
-        # With each checkpoint, so a run cut short (a session's end) resumes where it was.
-        common.append("trainer.save_replay_buffer=true")
     if last.is_file():
         args = [f"resume={folder}", f"trainer.total_timesteps={budget}", f"hydra.run.dir={folder}"]
     else:
-        args = [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common, f"hydra.run.dir={folder}"]
+        args = [*new_run_overrides(variant, task, seed, eval_every, budget, save_replay_buffer),
+                f"hydra.run.dir={folder}"]
     print(f"training {variant} {task} seed {seed}: {' '.join(args)}", flush=True)
     t0 = time.time()
     subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], check=True)
@@ -213,7 +179,7 @@ def main(argv=None) -> int:
     run.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     run.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
     run.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    run.add_argument("--eval-every", type=int, default=2000)
+    run.add_argument("--eval-every", type=int, default=1000, help="steps between evaluations (the trainer's default)")
     run.add_argument("--steps", type=int, default=None, help="override every variant's step budget")
     run.add_argument("--root", type=Path, default=Path("outputs/learning"))
     run.add_argument("--save-replay-buffer", action="store_true",

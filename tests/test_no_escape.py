@@ -91,7 +91,7 @@ def test_escape_truncates():
 # Before the introducer sheath the wire bowed out of the unguided 15 mm between the
 # guide channel's outlet and the vessel's open end (the short test escaped in every aorta
 # at steps 181-244); the sheath and seal close that gap. The full protocol (10^5
-# adversarial steps per aorta) is scripts/force_distribution.py, its output in docs/model.md.
+# adversarial steps per aorta) is experiments/force_distribution.py, its output in docs/model.md.
 @pytest.mark.slow
 @pytest.mark.parametrize("aorta", available_aortas())
 def test_no_escape_reproduction_and_adversarial_bursts(aorta):

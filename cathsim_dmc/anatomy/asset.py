@@ -359,7 +359,7 @@ UNRECORDED_MESHER_VERSION = 1
 
 # The shipped presets are built with the version-1 mesher (scripts/build_assets.py), which
 # pinches narrow branches on some arches (lumen module docstring; the shipped ones keep
-# 0.76-0.87 of their nominal branch radius, scripts/lumen_radius.py), because their expert,
+# 0.76-0.87 of their nominal branch radius, experiments/lumen_radius.py), because their expert,
 # containment and learning tables were measured on the version-1 meshes: rebuilding them
 # would invalidate those tables. When the tables are re-run, rebuild these assets at
 # lumen.MESHER_VERSION (drop them from here) in the same change. A preset not listed is

@@ -106,7 +106,7 @@ MAX_SAG_FRACTION = 0.1
 SAG_REFINE_LEVELS = 2
 # Version 2 (the three settings above) keeps every branch's lumen at 0.87 or more of its
 # nominal radius on those 50 arches (median 0.90); version 1 kept 0.25 or more (median 0.82,
-# 10 arches below 0.75): scripts/lumen_radius.py, module docstring.
+# 10 arches below 0.75): experiments/lumen_radius.py, module docstring.
 MESHER_VERSION = 2
 MESHER_VERSIONS = (1, 2)
 

@@ -167,7 +167,7 @@ class Aorta(composer.Entity):
         # The wall pieces go into the world body, placed where the attachment frame puts
         # them. In a static non-world body (the frame) MuJoCo's broadphase costs about 7x
         # more (issue 20's probe: 154 against 22 us per physics step; a whole physics step
-        # 8-18% more, scripts/physics_probe.py); contacts, forces and trajectories come
+        # 8-18% more, experiments/physics_probe.py); contacts, forces and trajectories come
         # out bit-identical (tests/test_physics_settings.py).
         placement = {}
         if body.name != spec.worldbody.name:

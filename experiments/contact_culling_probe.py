@@ -1,9 +1,9 @@
 """Two collision levers measured from saved arch states (issue 20): culling and threads.
 
-    python scripts/contact_culling_probe.py            # type1, states after 60/100/150 steps
+    python experiments/contact_culling_probe.py        # type1, states after 60/100/150 steps
 
 Drives the BCA task (`fast` physics) with full insertion and slow rotation, as
-`scripts/physics_probe.py` does, and at each of `--at` control steps measures:
+`experiments/physics_probe.py` does, and at each of `--at` control steps measures:
 
 * **Culling wire segments far from the wall.** Each wire capsule's clearance from the
   lumen (the closest of 15 points along its axis to the asset's lumen mesh, exact

@@ -1,8 +1,8 @@
 """Collision study (issue 20, item 4): the vessel wall's representation, cost against fidelity.
 
-    python scripts/collision_study.py                        # bca/type1, `fast` physics, all walls
-    python scripts/collision_study.py --episodes 5 --repeats 5 --out /tmp/collision_study
-    python scripts/collision_study.py --walls today coarse35 sdf   # a subset (the first is the baseline)
+    python experiments/collision_study.py                    # bca/type1, `fast` physics, all walls
+    python experiments/collision_study.py --episodes 5 --repeats 5 --out /tmp/collision_study
+    python experiments/collision_study.py --walls today coarse35 sdf   # a subset (the first is the baseline)
 
 Walls compared (each under the `fast` physics settings, the scene otherwise the same):
 
@@ -70,7 +70,7 @@ def _early_out(argv) -> pathlib.Path:
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "experiments"))  # physics_probe, beside this script
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402

@@ -1,7 +1,7 @@
 """How closely the distance-field wall follows the lumen it was built from.
 
-    python scripts/wall_field_check.py                 # type1, 20,000 points
-    python scripts/wall_field_check.py --aorta type3 --points 50000
+    python experiments/wall_field_check.py             # type1, 20,000 points
+    python experiments/wall_field_check.py --aorta type3 --points 50000
 
 Samples points within the contact range of the lumen surface (from 1.5 mm inside to
 2.5 mm outside, along the faces' normals from random points on random triangles), reads

@@ -1,6 +1,6 @@
 """Wire-wall contact force distribution: per physics step and per control step.
 
-    python scripts/force_distribution.py --aortas type1 --episodes 100 --adversarial-steps 5000
+    python experiments/force_distribution.py --aortas type1 --episodes 100 --adversarial-steps 5000
 
 For each aorta it runs `--episodes` scripted-expert episodes per target (seeds 0, 1, ...)
 and `--adversarial-steps` control steps of adversarial actions (on the BCA task, reset

@@ -1,7 +1,7 @@
 """Physics settings against each other, from the same saved states in the arch.
 
-    python scripts/physics_probe.py                       # type1, states after 60/100/150 steps
-    python scripts/physics_probe.py --steps 200 --repeats 7 --variants accurate fast pgs10 wall_frame
+    python experiments/physics_probe.py                   # type1, states after 60/100/150 steps
+    python experiments/physics_probe.py --steps 200 --repeats 7 --variants accurate fast pgs10 wall_frame
 
 Drives the BCA task with a fixed action (full insertion, slow rotation: the wire climbs
 the descending aorta and works into the arch, then buckles there) under the `accurate`

@@ -1,7 +1,7 @@
 """The fidelity gate of the physics settings: every check, each setting side by side.
 
-    python scripts/fidelity_gate.py                      # all six aortas, both targets, 20 seeds
-    python scripts/fidelity_gate.py --aortas type1 --seeds 5 --json gate.json
+    python experiments/fidelity_gate.py                  # all six aortas, both targets, 20 seeds
+    python experiments/fidelity_gate.py --aortas type1 --seeds 5 --json gate.json
 
 A solver setting (`cathsim_dmc.physics.PHYSICS_SETTINGS`) may become the default only
 if, measured in the same run as the others:

@@ -1,10 +1,10 @@
 #!/usr/bin/env python
 """Meshed lumen radius of each branch against its nominal radius (a pinched branch shows up here).
 
-    python scripts/lumen_radius.py --pool-seed 100 --pool-size 50 --out /tmp/pool100   # build + measure
-    python scripts/lumen_radius.py --assets type1 type2 assets/bovine                    # measure only
-    python scripts/lumen_radius.py --pool-seed 100 --indices 42 --validate               # + holes/intrusion
-    python scripts/lumen_radius.py --mesher-version 1 --out /tmp/pool100_v1              # the old mesher
+    python experiments/lumen_radius.py --pool-seed 100 --pool-size 50 --out /tmp/pool100   # build + measure
+    python experiments/lumen_radius.py --assets type1 type2 assets/bovine                    # measure only
+    python experiments/lumen_radius.py --pool-seed 100 --indices 42 --validate               # + holes/intrusion
+    python experiments/lumen_radius.py --mesher-version 1 --out /tmp/pool100_v1              # the old mesher
 
 The pool's arches are drawn exactly as `aorta=random` draws them (`tasks.randomized.anatomy_pool`:
 `sample_arch_params(default_rng([pool_seed, i]), name=f"random{pool_seed}-{i}")`, with

@@ -2,8 +2,8 @@
 one command per mesh, and print a Markdown table: triangles in, what the importer did, seconds,
 and the validation (holes, intrusion) with the anatomy against the type I arch it came from.
 
-    python scripts/import_corpus.py --out /tmp/corpus            # all variants, 1 mm voxels (~260k triangles)
-    python scripts/import_corpus.py --voxel-mm 0.9 --variants noisy   # ~320k triangles
+    python experiments/import_corpus.py --out /tmp/corpus        # all variants, 1 mm voxels (~260k triangles)
+    python experiments/import_corpus.py --voxel-mm 0.9 --variants noisy   # ~320k triangles
 """
 
 from __future__ import annotations
