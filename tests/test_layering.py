@@ -1,7 +1,8 @@
 """The package's layering, read from its imports (every import statement, including the
 ones deferred into functions): no module outside cli/ imports cli/, no import circles,
-the anatomy layer (its validation included) imports without dm_control or MuJoCo, and
-the entities import neither the renderer nor any layer built on them."""
+the anatomy layer (its validation included) imports without dm_control or MuJoCo, the
+entities import neither the renderer nor any layer built on them, and the tasks import
+none of the layers that drive them."""
 
 import ast
 import subprocess
@@ -155,3 +156,23 @@ def test_importing_entities_loads_no_renderer():
             "assert not loaded, loaded")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
+
+
+# What the task layer may not import: the layers that drive a task (the Gymnasium adapter,
+# policies and experts, learning, evaluation, the command line).
+TASK_FORBIDDEN = ("cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.supervised", "cathsim_dmc.policies",
+                  "cathsim_dmc.experts", "cathsim_dmc.evaluation", "cathsim_dmc.fidelity", "cathsim_dmc.cli")
+
+
+def test_tasks_never_import_the_layers_that_drive_them():
+    offenders = [(path.name, name) for path in sorted((ROOT / "tasks").rglob("*.py"))
+                 for name in _imported_names(path)
+                 if any(name == f or name.startswith(f + ".") for f in TASK_FORBIDDEN)]
+    assert offenders == []
+
+
+def test_physics_and_fidelity_never_import_the_gymnasium_adapter():
+    # fidelity measures the model through the composer environment (cathsim_dmc.tasks).
+    offenders = [(name, imported) for name in ("physics.py", "fidelity.py", "arena.py")
+                 for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.gym")]
+    assert offenders == []
