@@ -165,21 +165,28 @@ def insertion_response(physics_setting=cs_physics.DEFAULT_PHYSICS, aorta: str = 
     """Full-speed insertion from the start pose with a slow rotation (`cathsim-bench`'s
     motion: up the descending aorta and into the arch, in wall contact), then retraction:
     how closely the tip (measured along the vessel, `Navigate.slack_m`) follows the carriage."""
-    from cathsim_dmc.gym import CathSimEnv  # deferred: the environment needs the task suite
+    from cathsim_dmc import tasks  # deferred: building the suite needs the assets
 
-    env = CathSimEnv(task="bca", aorta=aorta, obs="internal", physics=physics_setting)
-    _, info = env.reset(seed=seed)
-    slacks, escaped, diverged, ratios = [], False, False, []
+    env = tasks.load("bca", aorta, obs="internal", physics=physics_setting)
+    env.random_state.seed(seed)
+    env.reset()
+    task = env.task
+    info = task.step_info(env.physics)
+    slacks, escaped, diverged, ratios, ended = [], False, False, [], False
     for action, steps in (([1.0, rotation], insert_steps), ([-1.0, rotation], retract_steps)):
-        carriage, slack = info["insertion_m"], info["slack_m"]
+        carriage, slack = info.insertion_m, info.slack_m
         for _ in range(steps):
-            _, _, _, _, info = env.step(np.asarray(action, np.float32))
-            slacks.append(info["slack_m"])
-            escaped |= info["escaped"]
-            diverged |= info["diverged"]
-        carriage_advance = info["insertion_m"] - carriage
-        ratios.append((carriage_advance - (info["slack_m"] - slack)) / carriage_advance)  # slack: carriage - tip
+            if ended:  # another step would start a new episode
+                raise RuntimeError(f"the episode ended after {task.step_count} steps (success, escape or divergence): "
+                                   "the insertion response needs the whole motion")
+            ended = env.step(np.asarray(action, np.float32)).last()
+            info = task.step_info(env.physics)
+            slacks.append(info.slack_m)
+            escaped |= info.escaped
+            diverged |= info.diverged
+        carriage_advance = info.insertion_m - carriage
+        ratios.append((carriage_advance - (info.slack_m - slack)) / carriage_advance)  # slack: carriage - tip
     env.close()
     return InsertionResponse(insert_ratio=float(ratios[0]), retract_ratio=float(ratios[1]),
                              max_slack_m=float(np.max(np.abs(slacks))), final_slack_m=float(slacks[-1]),
-                             tip_m=np.asarray(info["tip_position_m"], dtype=float).copy(), escaped=escaped, diverged=diverged)
+                             tip_m=np.asarray(info.tip_position_m, dtype=float).copy(), escaped=escaped, diverged=diverged)

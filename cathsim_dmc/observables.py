@@ -11,12 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from dm_control import composer
-from dm_control.composer.observation import observable
 from dm_control.mujoco.wrapper.core import MjvOption
 
 from cathsim_dmc import _gl, geom_groups, raster
 from cathsim_dmc.checks import check_number
+from cathsim_dmc.entities.observables import JointObservables  # noqa: F401  (re-exported: its old home)
 from cathsim_dmc.paths import conf_root
 
 TOP_CAMERA = "top"
@@ -66,22 +65,6 @@ def load_presets(folder) -> dict:
 
 
 OBSERVATION_PRESETS = load_presets(conf_root() / "obs")
-
-
-class JointObservables(composer.Observables):
-    """Positions and velocities of an entity's `joints` (the proprioception group)."""
-
-    @composer.observable
-    def joint_pos(self):
-        return observable.MJCFFeature("qpos", self._entity.joints)
-
-    @composer.observable
-    def joint_vel(self):
-        return observable.MJCFFeature("qvel", self._entity.joints)
-
-    @property
-    def proprioception(self):
-        return [self.joint_pos, self.joint_vel]
 
 
 def observation_settings(preset: str, **overrides) -> ObservationSettings:

@@ -278,6 +278,49 @@ class ConstraintSensingPhysics(mjcf.Physics):
             mujoco.mj_step1(model, data)
 
 
+class ControlStepForce:
+    """The wall force of each control step: the mean and the largest of its physics steps' totals (N).
+
+    A control step runs many physics steps (twenty by default) and an impact can last one
+    of them, so the force at the step's end says little about the step. Per episode,
+    `start(physics, is_wire_geom, is_vessel_geom, total_n)` sets the masks and the start
+    state's total, and hooks `add` into a `ConstraintSensingPhysics` (called after every
+    physics step's constraint solve, where contacts and forces belong to one state). Per
+    control step, `begin_step()` before it and `end_step(end_total_n)` after it; in a
+    physics without the hook, the mean and the peak fall back to `end_total_n()`.
+    """
+
+    def __init__(self):
+        self.mean_n = self.peak_n = 0.0  # of the last control step (at reset: the start state's total)
+        self._wall_force = None
+        self._sum_n, self._samples, self._largest_n = 0.0, 0, 0.0
+
+    def start(self, physics, is_wire_geom: np.ndarray, is_vessel_geom: np.ndarray, total_n: float) -> None:
+        """A new episode in `physics`, whose start state's wall force is `total_n`."""
+        self._wall_force = WallForceTotal(is_wire_geom, is_vessel_geom)
+        self.mean_n = self.peak_n = total_n
+        if isinstance(physics, ConstraintSensingPhysics):
+            physics.after_constraint_solve = self.add
+
+    def begin_step(self) -> None:
+        self._sum_n, self._samples, self._largest_n = 0.0, 0, 0.0
+
+    def add(self, physics) -> None:
+        """Counts one physics step's total (the `ConstraintSensingPhysics.after_constraint_solve` hook)."""
+        total = self._wall_force.total_n(physics.data.ptr)
+        self._sum_n += total
+        self._samples += 1
+        if total > self._largest_n:
+            self._largest_n = total
+
+    def end_step(self, end_total_n) -> None:
+        """Closes the control step; `end_total_n()`: the total at its end, read only if no physics step was counted."""
+        if self._samples:
+            self.mean_n, self.peak_n = self._sum_n / self._samples, self._largest_n
+        else:
+            self.mean_n = self.peak_n = end_total_n()
+
+
 def total_contact_force_n(physics, is_wire_geom: np.ndarray, is_vessel_geom: np.ndarray) -> float:
     """`wire_contacts(...).total_n` without ``mj_forward`` and without rotating to world.
 

@@ -14,7 +14,8 @@ from cathsim_dmc.physics import DEFAULT_PHYSICS, physics_settings
 from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.paths import available_aortas
 from cathsim_dmc.registry import TARGETS, all_tasks
-from cathsim_dmc.tasks.navigate import NavigationEnvironment, Navigate, check_options
+from cathsim_dmc.tasks.environment import NavigationEnvironment
+from cathsim_dmc.tasks.navigate import Navigate, check_options
 from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment
 
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)

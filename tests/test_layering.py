@@ -1,6 +1,8 @@
 """The package's layering, read from its imports (every import statement, including the
 ones deferred into functions): no module outside cli/ imports cli/, no import circles,
-and the anatomy layer (its validation included) imports without dm_control or MuJoCo."""
+the anatomy layer (its validation included) imports without dm_control or MuJoCo, the
+entities import neither the renderer nor any layer built on them, and the tasks import
+none of the layers that drive them."""
 
 import ast
 import subprocess
@@ -110,4 +112,67 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
             else:
                 continue
             offenders += [(path.name, n) for n in names if n.split(".")[0] in ("dm_control", "mujoco")]
+    assert offenders == []
+
+
+# What an entity may not import: the image observables and their renderers, and every
+# layer built on entities (tasks, the Gymnasium adapter, learning, the command line).
+ENTITY_FORBIDDEN = ("cathsim_dmc.observables", "cathsim_dmc.raster", "cathsim_dmc._gl", "cathsim_dmc.tasks",
+                    "cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.cli")
+
+
+def _imported_names(path: Path) -> list:
+    """Every module an import statement of `path` names (`from a import b`: a and a.b)."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names += [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+    return names
+
+
+def test_entities_never_import_the_renderer_or_the_layers_above():
+    # Not even deferred into a function: an entity is built and simulated without images.
+    offenders = [(path.name, name) for path in sorted((ROOT / PACKAGE / "entities").rglob("*.py"))
+                 for name in _imported_names(path)
+                 if any(name == f or name.startswith(f + ".") for f in ENTITY_FORBIDDEN)]
+    assert offenders == []
+
+
+def test_the_entity_check_sees_a_forbidden_import(tmp_path):
+    module = tmp_path / "bad.py"
+    module.write_text("def f():\n    from cathsim_dmc import observables\n    import cathsim_dmc.raster\n")
+    assert {"cathsim_dmc.observables", "cathsim_dmc.raster"} <= set(_imported_names(module))
+
+
+def test_importing_entities_loads_no_renderer():
+    # A fresh interpreter: this test process has loaded everything already. The package's
+    # own __init__ picks the GL backend (cathsim_dmc._gl, a few lines of os and ctypes)
+    # before dm_control is imported, so only the modules that render are checked here.
+    code = ("import sys, cathsim_dmc.entities; "
+            "loaded = [m for m in ('cathsim_dmc.observables', 'cathsim_dmc.raster', 'cathsim_dmc.tasks') "
+            "if m in sys.modules]; "
+            "assert not loaded, loaded")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+# What the task layer may not import: the layers that drive a task (the Gymnasium adapter,
+# policies and experts, learning, evaluation, the command line).
+TASK_FORBIDDEN = ("cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.supervised", "cathsim_dmc.policies",
+                  "cathsim_dmc.experts", "cathsim_dmc.evaluation", "cathsim_dmc.fidelity", "cathsim_dmc.cli")
+
+
+def test_tasks_never_import_the_layers_that_drive_them():
+    offenders = [(path.name, name) for path in sorted((ROOT / "tasks").rglob("*.py"))
+                 for name in _imported_names(path)
+                 if any(name == f or name.startswith(f + ".") for f in TASK_FORBIDDEN)]
+    assert offenders == []
+
+
+def test_physics_and_fidelity_never_import_the_gymnasium_adapter():
+    # fidelity measures the model through the composer environment (cathsim_dmc.tasks).
+    offenders = [(name, imported) for name in ("physics.py", "fidelity.py", "arena.py")
+                 for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.gym")]
     assert offenders == []

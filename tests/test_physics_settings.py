@@ -111,7 +111,7 @@ def test_the_end_of_step_forces_are_those_of_a_full_forward(env_in_the_arch):
     for step in range(8):
         env.step(np.array([0.6, 0.3 * (-1) ** step]))
         expected = _read_after_full_forward(task, physics)
-        task._contacts = None  # the gym step's info has read them already: read again
+        task.measurements._contacts = None  # the gym step's info has read them already: read again
         read = task.contact_forces(physics)
         np.testing.assert_array_equal(read.forces_n, expected.forces_n)
         np.testing.assert_array_equal(read.positions_m, expected.positions_m)
@@ -121,7 +121,7 @@ def test_the_end_of_step_forces_are_those_of_a_full_forward(env_in_the_arch):
     env.step(np.array([0.5, 0.0]))
     physics.data.qpos[:] += 2e-4
     expected = _read_after_full_forward(task, physics)
-    task._contacts = None
+    task.measurements._contacts = None
     read = task.contact_forces(physics)
     assert read.count
     np.testing.assert_array_equal(read.positions_m, expected.positions_m)
@@ -133,8 +133,8 @@ def test_the_per_physics_step_total_is_the_reference_total(env_in_the_arch):
     physics step, also with frictionless (one-row) contacts: the guide channel's."""
     env = env_in_the_arch
     task, physics = env.task, env.physics
-    wire = task._wire_mask
-    masks = [task._vessel_mask, ~wire]  # the wall; everything else, channel included
+    wire = task.measurements.wire_mask
+    masks = [task.measurements.vessel_mask, ~wire]  # the wall; everything else, channel included
     readers = [cs_physics.WallForceTotal(wire, mask) for mask in masks]
     task_callback, pairs, one_row = physics.after_constraint_solve, [], [0]
 
@@ -177,8 +177,8 @@ def _read_after_full_forward(task, physics):
     model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
     mujoco.mj_copyData(data, model, physics.data.ptr)
     mujoco.mj_forward(model, data)
-    return cs_physics.wire_contacts(_Physics(model, data), task._wire_mask, recompute=False,
-                                    is_vessel_geom=task._vessel_mask)
+    return cs_physics.wire_contacts(_Physics(model, data), task.measurements.wire_mask, recompute=False,
+                                    is_vessel_geom=task.measurements.vessel_mask)
 
 
 class _Physics:

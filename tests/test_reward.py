@@ -175,3 +175,44 @@ def test_aim_shaping_pays_the_expert_for_turning_the_bend_before_it_advances():
     assert np.mean(turning) > 0 and sum(t > 0 for t in turning) > len(turning) / 2
     with pytest.raises(ValueError, match="aim_weight"):
         tasks.load("bca", "type1", aim_weight=float("nan"))
+
+
+def test_every_reward_term_is_found_by_name_and_an_unknown_one_names_the_choices():
+    from cathsim_dmc.tasks import rewards
+
+    assert set(rewards.DISTANCES) | set(rewards.SHAPING) == {"euclidean", "geodesic", "progress", "aim"}
+    for name in rewards.DISTANCES + rewards.SHAPING:
+        assert callable(rewards.get_reward(name))
+    with pytest.raises(ValueError, match="geodesic"):
+        rewards.get_reward("manhattan")
+
+
+def test_the_distances_ask_for_the_way_along_the_vessel_only_when_they_use_it():
+    from cathsim_dmc.tasks import rewards
+
+    tip, target = np.array([0.0, 0.0, 0.0]), np.array([0.03, 0.04, 0.0])  # 50 mm apart
+
+    def not_needed():
+        raise AssertionError("the straight line needs no centerline")
+
+    assert rewards.get_reward("euclidean")(tip, target, not_needed) == pytest.approx(0.05)
+    # Along the vessel, or the straight line where that is longer (near the target, off its axis).
+    assert rewards.get_reward("geodesic")(tip, target, lambda: 0.08) == pytest.approx(0.08)
+    assert rewards.get_reward("geodesic")(tip, target, lambda: 0.01) == pytest.approx(0.05)
+
+
+def test_a_reward_is_its_terms_added_up():
+    from cathsim_dmc.tasks.rewards import NavigationReward
+
+    step_m = 0.004
+    shaped = NavigationReward(kind="geodesic", progress_weight=1.0, aim_weight=2.0)
+    # 4 mm of progress (one full step: +1) at 30 mm from the target, the aim's potential up by 0.5.
+    assert shaped.reward(0.034, 0.030, False, step_m, -1.0, -0.5) == pytest.approx(-0.030 + 1.0 + 0.5)
+    assert shaped.reward(0.034, 0.003, True, step_m, -1.0, -0.5) == 10.0  # success: the success reward alone
+    sparse = NavigationReward(dense=False, progress_weight=0.5)
+    assert sparse.step_reward(0.030, 0.034, False, step_m) == pytest.approx(-0.5)  # 4 mm away: -weight
+    # A bend turned a half turn from an aim well off the shaft's axis costs the whole weight.
+    assert shaped.aim_potential(np.pi, 1.0) == pytest.approx(-2.0)
+    assert shaped.aim_potential(np.pi, 0.0) == 0.0  # straight ahead the bend does not matter
+    with pytest.raises(ValueError, match="euclidean"):
+        NavigationReward(kind="manhattan")

@@ -157,3 +157,57 @@ class CatheterOverWire:
         model.qpos_spring[self._qpos_adr] = rest
         model.dof_armature[self._dof_adr] = self._armature0 * scale
         model.dof_damping[self._dof_adr] = self._damping0 * scale
+
+
+class CatheterDrive:
+    """The catheter's carriage on a `FollowerRobot`: where the catheter lies along the wire.
+
+    The catheter starts each episode parked, its tip at the sheath's (the robot's outlet),
+    the wire's shaped tip out of it. Each control step the wire moves under it (the
+    catheter keeps its place) and the carriage moves it by its command (+1:
+    `Catheter.max_speed_m_s` forwards); it can pass neither the wire's tip nor go back
+    into the sheath. Its position covers the wire through `CatheterOverWire`.
+    """
+
+    def __init__(self, catheter: Catheter, guidewire, robot):
+        self.catheter = catheter
+        self._over_wire = CatheterOverWire(catheter, guidewire)
+        self._robot = robot
+        self._model_key = None  # the compiled model the wire's own joint values were read from
+        self._out_m = 0.0  # the catheter's tip past the sheath's tip, along the wire
+        self._offset_m = 0.0
+        self._command = 0.0
+
+    @property
+    def offset_m(self) -> float:
+        """How far the catheter's tip lies behind the wire's tip, along the wire, in metres (0: flush)."""
+        return self._offset_m
+
+    def initialize_episode(self, physics) -> None:
+        """Parks the catheter (its tip at the sheath's) and covers the wire accordingly."""
+        if self._model_key != id(physics.model.ptr):  # a new compiled model: read the wire's own joints
+            self._over_wire.initialize(physics)
+            self._model_key = id(physics.model.ptr)
+        self._out_m = 0.0
+        self._command = 0.0
+        self._cover(physics)
+
+    def set_command(self, command: float) -> None:
+        """The carriage's speed for the coming control step, as a fraction of `max_speed_m_s` (clipped to [-1, 1])."""
+        self._command = float(np.clip(command, -1.0, 1.0))
+
+    def move(self, physics, duration_s: float) -> None:
+        """The carriage's move over a control step of `duration_s` seconds, then the wire covered anew."""
+        moved_m = self._command * self.catheter.max_speed_m_s * duration_s
+        self._out_m = float(np.clip(self._out_m + moved_m, 0.0, self._wire_out_of_sheath_m(physics)))
+        self._cover(physics)
+
+    def _wire_out_of_sheath_m(self, physics) -> float:
+        """How far the wire's tip lies past the sheath's tip, along the wire: its start
+        length plus the carriage's travel."""
+        return self._robot.initial_insertion_m + self._robot.insertion_m(physics)
+
+    def _cover(self, physics) -> None:
+        wire_out_m = self._wire_out_of_sheath_m(physics)
+        self._offset_m = max(0.0, wire_out_m - self._out_m)
+        self._over_wire.apply(physics, self._offset_m, sheath_from_m=wire_out_m)

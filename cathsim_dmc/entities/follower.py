@@ -42,7 +42,7 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
-from cathsim_dmc.observables import JointObservables
+from cathsim_dmc.entities.observables import JointObservables
 
 
 

@@ -26,7 +26,7 @@ from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
 from cathsim_dmc.checks import check_number
-from cathsim_dmc.observables import JointObservables
+from cathsim_dmc.entities.observables import JointObservables
 
 TIP_SHAPES = ("straight", "angled", "j")
 

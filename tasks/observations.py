@@ -1,0 +1,59 @@
+"""The navigation task's observables: the robot's and the wire's joint features, the top
+view's images, and the extra signals a task can enable one by one.
+
+Which of them an environment returns is an observation preset's choice
+(`cathsim_dmc.observables.OBSERVATION_PRESETS`) plus `extra_observations`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from dm_control.composer.observation import observable
+
+from cathsim_dmc.observables import ObservationSettings, TopView, image_noise
+
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
+
+
+def check_extra_observations(extra_observations) -> tuple:
+    """`extra_observations` as a tuple; ValueError naming any that is unknown."""
+    unknown = sorted(set(extra_observations) - set(EXTRA_OBSERVATIONS))
+    if unknown:
+        raise ValueError(f"extra_observations {unknown} unknown; choose from {list(EXTRA_OBSERVATIONS)}")
+    return tuple(extra_observations)
+
+
+def task_observables(task, settings: ObservationSettings, extra_observations: tuple = ()) -> tuple[dict, TopView]:
+    """(name -> observable, the `TopView` drawing the images) for `task` (a `Navigate`),
+    those of `settings` and `extra_observations` enabled."""
+    robot, guidewire = task.robot, task.guidewire
+    wire_joints = guidewire.joints
+    top_view = TopView(settings.image_size, renderer=settings.renderer, wire=guidewire,
+                       vessel_geom_id=task.aorta.visual_geom_id)
+
+    def catheter_features():
+        # With a catheter: its tip's offset behind the wire's tip over the robot's stroke.
+        return np.zeros(0) if task.catheter is None else np.array([task.catheter_offset_m / robot.stroke_m])
+
+    obs = {
+        # The robot's pose as bounded features (insertion / stroke, sin and cos of the
+        # rotation, which is never wrapped otherwise), then the wire's bending angles (rad).
+        "joint_pos": observable.Generic(lambda physics: np.concatenate(
+            [robot.pose_features(physics), physics.bind(wire_joints).qpos, catheter_features()])),
+        # Robot rates as fractions of the drive's maximum speeds, then the wire's (rad/s).
+        "joint_vel": observable.Generic(lambda physics: np.concatenate(
+            [robot.rate_features(physics), physics.bind(wire_joints).qvel])),
+        "wire_slack": observable.Generic(lambda physics: np.array([task.slack_m(physics)])),
+        "drive_force": observable.Generic(lambda physics: np.array([robot.drive_force_n(physics)])),
+        "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
+        "guidewire_mask": observable.Generic(top_view.mask),
+        "tip_position": observable.MJCFFeature("xpos", guidewire.tip_site),
+        # The step's wall force: the total averaged over its physics steps (at reset,
+        # the total of the start state).
+        "contact_force": observable.Generic(lambda physics: np.array([task.mean_wall_force_n], dtype=np.float64)),
+    }
+    for name, obs_item in obs.items():
+        obs_item.enabled = name in settings.enabled or name in extra_observations
+    if settings.noise_std > 0:
+        obs["pixels"].corruptor = image_noise(settings.noise_std)
+    return obs, top_view
