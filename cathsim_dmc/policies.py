@@ -157,7 +157,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
 
             model = SAC.load(model_path, device="cpu")
         elif algo == "bc":
-            from cathsim_dmc.rl.bc import load_bc_policy
+            from cathsim_dmc.supervised.bc import load_bc_policy
 
             model = load_bc_policy(model_path)
         else:

@@ -129,14 +129,14 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
 
 
 def _corrupt_manifest_collect(tmp_path):
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     collect(tmp_path / "data", "bca", "type1", "forward", episodes=1, episodes_per_shard=1, seed=0)
 
 
 def _corrupt_manifest_read(tmp_path):
-    from cathsim_dmc.rl.data import expand_paths
+    from cathsim_dmc.supervised.data import expand_paths
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     expand_paths(tmp_path / "data")

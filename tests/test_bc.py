@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc.rl.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
+from cathsim_dmc.supervised.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
 
 
 def _demonstrations(episodes=4, steps=8, seed=0):
@@ -94,7 +94,7 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
 
 
 def test_stacked_frames_are_the_images_before_in_the_same_episode():
-    from cathsim_dmc.rl.data import stack_frames
+    from cathsim_dmc.supervised.data import stack_frames
 
     images = np.arange(7, dtype=np.uint8).reshape(7, 1, 1, 1) * np.ones((1, 1, 2, 2), np.uint8)
     episode = np.array([0, 0, 0, 0, 1, 1, 1])
@@ -142,7 +142,7 @@ def _bc(args, cwd):
 
 
 def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=3, episodes_per_shard=3, seed=0,
             task_options={"max_steps": 10}, show_progress=False)

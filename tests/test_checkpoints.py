@@ -183,7 +183,7 @@ def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):
-    from cathsim_dmc.rl.data import expand_paths
+    from cathsim_dmc.supervised.data import expand_paths
     from cathsim_dmc.trajectory import save_npz
 
     save_npz(tmp_path / "shard_00000.npz", {"x": np.zeros(3)})

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.rl.collect import MANIFEST, collect
-from cathsim_dmc.rl.data import load_arrays, read_keys
+from cathsim_dmc.supervised.collect import MANIFEST, collect
+from cathsim_dmc.supervised.data import load_arrays, read_keys
 
 TINY = {"max_steps": 6}
 
@@ -126,7 +126,7 @@ def test_enn_agent_records_its_features(tmp_path):
     np.testing.assert_allclose(data["feature_z"][2], z, rtol=1e-5, atol=1e-6)
 
     # Distillation reads Z paired with the image the action was chosen from.
-    from cathsim_dmc.rl.bc import BCConfig, train_bc
+    from cathsim_dmc.supervised.bc import BCConfig, train_bc
 
     arrays = load_arrays([tmp_path / "data"], ("obs_pixels", "action", "feature_z"), before_action=True)
     np.testing.assert_array_equal(arrays["feature_z"][0], data["start_feature_z"][0])

@@ -166,7 +166,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
 
 def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_path):
     """Rewards recomputed from a cathsim-collect dataset's tip positions equal the live ones."""
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
     from cathsim_dmc.rl.demos import dataset_transitions, expert_transitions
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7,

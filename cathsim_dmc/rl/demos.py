@@ -245,7 +245,7 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
     `observation_space` (the training env's) names the observation keys to read; the
     dataset must hold them (cathsim-collect records every modality) at the same sizes.
     """
-    from cathsim_dmc.rl.data import load_arrays
+    from cathsim_dmc.supervised.data import load_arrays
 
     if task.aim_potential_weight:
         # The aim's potential needs the tip's bend, which datasets do not record.
@@ -284,7 +284,7 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
 
 def _episode_start_tips(paths) -> np.ndarray:
     """start_tip_position_m of every episode, in the global episode order of load_arrays."""
-    from cathsim_dmc.rl.data import expand_paths, read_keys
+    from cathsim_dmc.supervised.data import expand_paths, read_keys
 
     return np.concatenate([read_keys(p, ("start_tip_position_m",))["start_tip_position_m"]
                            for p in expand_paths(paths)]).astype(float)

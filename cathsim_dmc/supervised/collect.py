@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from cathsim_dmc.rl.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
+from cathsim_dmc.supervised.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 from cathsim_dmc.run_files import remove_temporaries, write_atomic
 from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder, action_rows
 
