@@ -77,7 +77,7 @@ def test_distillation_regresses_z():
 
 
 def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
-    from cathsim_dmc.policies import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents import CheckpointPolicy, make_policy
 
     net = BCNetwork()
     with torch.no_grad():
@@ -91,6 +91,12 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
     action = policy({"pixels": np.zeros((1, 80, 80), np.uint8)}, None)
     assert action.tolist() == [1.0, -0.25]
     assert load_bc_policy(tmp_path / "run" / "bc_policy.pt").image_key == "pixels"
+    # The scripted policies' module loads no checkpoint: a path there says where to go.
+    from cathsim_dmc import policies
+
+    with pytest.raises(ValueError, match="cathsim_dmc.agents.make_policy"):
+        policies.make_policy(str(tmp_path / "run"))
+    assert isinstance(make_policy("forward"), policies.ForwardPolicy)
 
 
 def test_stacked_frames_are_the_images_before_in_the_same_episode():
@@ -111,7 +117,7 @@ def test_stacked_frames_are_the_images_before_in_the_same_episode():
 
 
 def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
-    from cathsim_dmc.policies import make_policy
+    from cathsim_dmc.agents import make_policy
 
     class Episode:  # what CheckpointPolicy reads of an environment: the step count
         def __init__(self):

@@ -123,7 +123,7 @@ def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path
 
 
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
-    from cathsim_dmc.policies import load_checkpoint_policy
+    from cathsim_dmc.agents import load_checkpoint_policy
 
     run = tmp_path / "run"
     args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",

@@ -42,7 +42,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy
+    from cathsim_dmc.agents import CheckpointPolicy
     from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
     from cathsim_dmc.supervised.data import has_keys, load_arrays, stack_frames
 
