@@ -61,7 +61,7 @@ def _same_weights(a: dict, b: dict) -> bool:
 def test_resume_continues_from_the_saved_weights_buffer_and_step_count(tmp_path):
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cathsim_dmc.rl.demos import SACfD
+    from cathsim_dmc.rl.sacfd import SACfD
 
     first = _train(tmp_path, STEPS)
     ckpt = tmp_path / training.CHECKPOINT_DIR
@@ -173,7 +173,7 @@ def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
         training.resume_checkpoint(ckpt)
     # An older run's single replay_buffer.pkl is checked by its contents instead.
     (ckpt / "replay_buffer_step_20.pkl").rename(ckpt / training.LEGACY_REPLAY_BUFFER)
-    from cathsim_dmc.rl.demos import SACfD
+    from cathsim_dmc.rl.sacfd import SACfD
 
     model = SACfD.load(ckpt / training.LAST_CHECKPOINT)
     model.load_replay_buffer(ckpt / training.LEGACY_REPLAY_BUFFER)

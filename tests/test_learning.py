@@ -200,7 +200,8 @@ def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_exp
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.demos import add_transitions, expert_transitions, warm_up_critic
+    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
+    from cathsim_dmc.rl.sacfd import warm_up_critic
     from cathsim_dmc.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
@@ -305,7 +306,8 @@ def test_a_warm_start_lets_the_actor_act_and_trains_only_the_critic(env):
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.demos import add_transitions, expert_transitions, pretrain_actor
+    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
+    from cathsim_dmc.rl.sacfd import pretrain_actor
     from cathsim_dmc.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
@@ -349,7 +351,7 @@ def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
 
     from cathsim_dmc.paths import conf_root
     from cathsim_dmc.rl import train as training
-    from cathsim_dmc.rl.demos import SACfD
+    from cathsim_dmc.rl.sacfd import SACfD
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])

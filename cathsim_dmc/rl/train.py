@@ -145,7 +145,8 @@ def check_replay_buffer_step(buffer, step: int, source) -> None:
 def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None, demos: dict | None = None):
     """SAC on `env` from an `algo` config; with `demos` (its `share`, `capacity`) the replay
     buffer mixes demonstrations into every batch (`cathsim_dmc.rl.demos.DemoReplayBuffer`)."""
-    from cathsim_dmc.rl.demos import DemoReplayBuffer, SACfD
+    from cathsim_dmc.rl.demos import DemoReplayBuffer
+    from cathsim_dmc.rl.sacfd import SACfD
     from cathsim_dmc.rl.features import ENNExtractor, LayerNormSACPolicy
 
     policy_kwargs = dict(
@@ -520,7 +521,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     import torch
     from stable_baselines3.common.callbacks import CallbackList
 
-    from cathsim_dmc.rl.demos import SACfD
+    from cathsim_dmc.rl.sacfd import SACfD
 
     check_training(algo, trainer)
     run_dir = Path(run_dir)
@@ -609,7 +610,8 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
     """`demos["takeover_rounds"]` rounds: takeover demonstrations of the current actor
     (`rl.demos.takeover_transitions`) join the demonstrations, then the actor is
     re-trained on them for half of `pretrain_actor_steps`."""
-    from cathsim_dmc.rl.demos import add_transitions, pretrain_actor, takeover_transitions
+    from cathsim_dmc.rl.demos import add_transitions, takeover_transitions
+    from cathsim_dmc.rl.sacfd import pretrain_actor
 
     env, student = make_demo_env(), deterministic_policy(model)
     try:
@@ -632,8 +634,8 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
     """Record the expert's episodes (or read them from `demos["path"]`) into the model's
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
     them; each stage is logged with its size, loss and time."""
-    from cathsim_dmc.rl.demos import (DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions,
-                                      pretrain_actor, warm_up_critic)
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions
+    from cathsim_dmc.rl.sacfd import pretrain_actor, warm_up_critic
 
     buffer = model.replay_buffer
     if not isinstance(buffer, DemoReplayBuffer):
