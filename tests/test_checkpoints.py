@@ -1,6 +1,7 @@
 """Checkpoints as one unit: model, replay buffer and step count written together, resumed
 together, and a run killed at any point (inside any write) resumes from a matching pair."""
 
+import json
 import os
 import signal
 import subprocess
@@ -180,6 +181,48 @@ def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
     training.check_replay_buffer_step(model.replay_buffer, STEPS, "buffer")
     with pytest.raises(RuntimeError, match=r"holds 40 transitions \(full\), not the 30 of the checkpoint"):
         training.check_replay_buffer_step(model.replay_buffer, 30, "buffer")
+
+
+def _with_saved_attributes(checkpoint, **attributes):
+    """Rewrite an SB3 checkpoint as if its model had carried `attributes` when it was saved."""
+    with zipfile.ZipFile(checkpoint) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(members["data"])
+    data.update(attributes)
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(checkpoint, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+
+
+def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
+    """Checkpoints saved before the Q-filter, the warm start and the slower actor were
+    removed carry those settings, and SB3's load sets them on the model: nothing may read
+    them (the actor learns at the full rate from the first step) and they are not saved again."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from cathsim_dmc.rl.sacfd import SACfD
+
+    _train(tmp_path, STEPS)
+    last = tmp_path / training.CHECKPOINT_DIR / training.LAST_CHECKPOINT
+    removed = dict(bc_filter="q", warm_start_steps=10 * STEPS, actor_learning_rate_scale=0.3)
+    _with_saved_attributes(last, **removed)
+    assert SACfD.load(last).warm_start_steps == 10 * STEPS  # what SB3 does with them
+
+    class Actor(BaseCallback):
+        def _on_training_start(self):
+            self.start = _weights(self.model.actor)
+
+        def _on_step(self):
+            return True
+
+    spy = Actor()
+    resumed = _train(tmp_path, 2 * STEPS, resume=True, callbacks=[spy])
+    assert not _same_weights(spy.start, _weights(resumed.model.actor))  # a warm start would have held it
+    algo, _ = _configs()
+    assert resumed.model.actor.optimizer.param_groups[0]["lr"] == algo["learning_rate"]
+    with zipfile.ZipFile(last) as archive:
+        assert not set(removed) & set(json.loads(archive.read("data")))
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):

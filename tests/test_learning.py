@@ -195,8 +195,7 @@ def test_demonstrations_beyond_the_capacity_are_refused(env):
 
 
 def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_expert(env):
-    """SACfD's BC term: the same updates from the same start, without it, Q-filtered and
-    on every demonstration state."""
+    """SACfD's BC term: the same updates from the same start, with and without it."""
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -209,42 +208,20 @@ def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_exp
                 train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
                 net_arch=[64, 64], share_features_extractor=False, critic_layer_norm=True)
     errors = {}
-    for weight, bc_filter in ((0.0, "q"), (2.0, "q"), (2.0, "none")):
+    for weight in (0.0, 2.0):
         model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None,
-                          dict(share=0.5, capacity=1000, bc_weight=weight, bc_filter=bc_filter))
+                          dict(share=0.5, capacity=1000, bc_weight=weight))
         add_transitions(model.replay_buffer, demos)
         model._setup_learn(1)  # SB3 sets up its logger here; train() records to it
-        # As in the recipe, the critic is warmed up first: the Q-filter needs a critic that
-        # has seen the expert's returns (from a fresh critic it passes only ~30% of states).
-        warm_up_critic(model, 300, batch_size=64)
+        warm_up_critic(model, 300, batch_size=64)  # as in the recipe
         model.train(gradient_steps=150, batch_size=64)
         with torch.no_grad():
             obs = {k: torch.as_tensor(v) for k, v in demos.observations.items()}
             mean, _, _ = model.actor.get_action_dist_params(obs)
-            errors[weight, bc_filter] = float(((torch.tanh(mean) - torch.as_tensor(demos.actions)) ** 2)
-                                              .sum(dim=1).mean())
+            errors[weight] = float(((torch.tanh(mean) - torch.as_tensor(demos.actions)) ** 2).sum(dim=1).mean())
     print(errors)
-    # Paired runs (same seed, same batches). Measured 0.99 against 1.18 (wall margin, 2026-11-25).
-    assert errors[2.0, "q"] < 0.9 * errors[0.0, "q"]
-    # Unfiltered, the term counts on every demonstration state, not only where the critic
-    # prefers the expert: it pulls harder.
-    assert errors[2.0, "none"] < errors[2.0, "q"]
-
-
-def test_the_actor_can_learn_slower_than_the_critic(env):
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    from cathsim_dmc.rl.train import build_sac
-
-    algo = dict(learning_rate=3e-4, buffer_size=500, learning_starts=0, batch_size=16, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
-                net_arch=[16, 16], share_features_extractor=False, actor_learning_rate_scale=0.3)
-    model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None)
-    model.learn(40)  # 40 environment steps, updates from the first
-    assert model.actor.optimizer.param_groups[0]["lr"] == pytest.approx(0.3 * 3e-4)
-    assert model.critic.optimizer.param_groups[0]["lr"] == pytest.approx(3e-4)
-    with pytest.raises(ValueError, match="actor_learning_rate_scale=0"):
-        build_sac(DummyVecEnv([lambda: env]), dict(algo, actor_learning_rate_scale=0), 0, "cpu", None)
+    # Paired runs (same seed, same batches). Measured 0.03 against 2.48 (2026-11-27).
+    assert errors[2.0] < 0.9 * errors[0.0]
 
 
 def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, tmp_path):
@@ -298,46 +275,6 @@ def test_the_demonstration_budget_follows_the_target(overrides, episodes, capaci
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         demos = compose(config_name="train", overrides=overrides).demos
     assert (demos.episodes, demos.capacity, demos.takeover_rounds) == (episodes, capacity, takeover_rounds)
-
-
-def test_a_warm_start_lets_the_actor_act_and_trains_only_the_critic(env):
-    """demos.warm_start_steps: the pre-trained actor takes the first actions (not SB3's
-    uniform random ones) and is not updated until the warm start is over."""
-    import torch
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
-    from cathsim_dmc.rl.sacfd import pretrain_actor
-    from cathsim_dmc.rl.train import build_sac
-
-    demos = expert_transitions(env, episodes=1, seed=0)
-    algo = dict(learning_rate=1e-3, buffer_size=500, learning_starts=20, batch_size=32, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
-                net_arch=[32, 32], share_features_extractor=False)
-    model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None,
-                      dict(share=0.5, capacity=1000, warm_start_steps=60))
-    add_transitions(model.replay_buffer, demos)
-    pretrain_actor(model, 300, batch_size=32)
-
-    def flat(module):
-        return torch.cat([p.detach().flatten() for p in module.parameters()]).clone()
-
-    actor, critic = flat(model.actor), flat(model.critic)
-    model.learn(50)  # within the warm start: 30 critic updates after learning_starts
-    assert torch.equal(flat(model.actor), actor)
-    assert not torch.equal(flat(model.critic), critic)
-    # The actions before learning_starts are the actor's: closer to its deterministic
-    # action on the states it met than uniform draws on [-1, 1]^2 are.
-    taken = model.replay_buffer.actions[:20, 0]
-    states = {k: v[:20, 0] for k, v in model.replay_buffer.observations.items()}
-    mean_action = model.predict(states, deterministic=True)[0]
-    # Measured: 0.05 from the actor, 0.70 with SB3's uniform actions.
-    assert float(np.abs(taken - mean_action).mean()) < 0.35
-    model.learn(30, reset_num_timesteps=False)  # past the warm start: the actor learns
-    assert not torch.equal(flat(model.actor), actor)
-    with pytest.raises(ValueError, match="warm_start_steps=-1"):
-        build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None, dict(share=0.5, capacity=1000,
-                                                                         warm_start_steps=-1))
 
 
 def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):

@@ -84,43 +84,31 @@ class SACfD(SAC):
     """SAC whose actor is also pulled towards the expert's actions on demonstration states.
 
     The actor's loss gains `bc_weight` x mean|Q| x the squared error between its
-    deterministic action and the expert's, on the demonstration part of the batch, counted only where
-    the critic rates the expert's action above the actor's (the Q-filter of Nair et al.,
-    2018): the agent imitates until it has found something the critic values more. With
-    `bc_filter="none"` it is counted on every demonstration state (TD3+BC's unfiltered
-    term, Fujimoto and Gu, 2021), which keeps the actor near the expert even where the
-    critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
-
-    With `warm_start_steps` > 0 the online phase starts warm: for that many environment
-    steps the (pre-trained) actor itself takes the actions, stochastically, instead of
-    SB3's uniform random actions before `learning_starts`, and the updates in that time
-    train the critic only. The critic, warmed up on the expert's actions alone, first
-    learns the values of the agent's own before the actor follows it (the warm-up of
-    WSRL, Zhou et al., 2024, with the actor held still).
-
-    `actor_learning_rate_scale` < 1 gives the actor a smaller learning rate than the
-    critic (the critic's follows `learning_rate`), so the policy follows the critic more
-    slowly.
+    deterministic action and the expert's, on every demonstration state of the batch
+    (TD3+BC's term, Fujimoto and Gu, 2021): it keeps the actor near the expert even where
+    the critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
 
     With `actor_average_tau` > 0 it also keeps an exponential moving average of the
     actor's weights (each update moves it `actor_average_tau` of the way to the current
     actor: about 1/tau updates of memory), which `averaged_actor()` swaps in, e.g. for
     deterministic evaluation: the averaged policy does not follow every swing of the
     critic (weight averaging in RL: Nikishin et al., 2018).
+
+    :param bc_weight: strength of the cloning term, in units of the critic's mean |Q|
+        (0: plain SAC); it needs a `DemoReplayBuffer`
+    :param actor_average_tau: rate of the actor's weight average, in [0, 1] (0: none)
+    :param args: SB3's SAC arguments
+    :param kwargs: SB3's SAC arguments
     """
 
-    BC_FILTERS = ("q", "none")
+    # Settings of earlier versions (the Q-filter, a warm start, a slower actor) that
+    # measured no gain and were removed. Checkpoints saved before carry them, and SB3's
+    # load sets every saved attribute on the model: nothing reads them, and they are not
+    # saved again.
+    REMOVED_SETTINGS = ("bc_filter", "warm_start_steps", "actor_learning_rate_scale")
 
-    def __init__(self, *args, bc_weight: float = 0.0, bc_filter: str = "q", actor_average_tau: float = 0.0,
-                 actor_learning_rate_scale: float = 1.0, warm_start_steps: int = 0, **kwargs):
-        self.warm_start_steps = check_number("warm_start_steps", warm_start_steps, 0, whole=True)
+    def __init__(self, *args, bc_weight: float = 0.0, actor_average_tau: float = 0.0, **kwargs):
         self.bc_weight = float(bc_weight)
-        if bc_filter not in self.BC_FILTERS:
-            raise ValueError(f"bc_filter={bc_filter!r}; valid: {', '.join(self.BC_FILTERS)}")
-        self.bc_filter = bc_filter
-        if not 0.0 < float(actor_learning_rate_scale) <= 1.0:
-            raise ValueError(f"actor_learning_rate_scale={actor_learning_rate_scale!r} must be within (0, 1]")
-        self.actor_learning_rate_scale = float(actor_learning_rate_scale)
         if not 0.0 <= float(actor_average_tau) <= 1.0:
             raise ValueError(f"actor_average_tau={actor_average_tau!r} must be within [0, 1] (0: no average)")
         self.actor_average_tau = float(actor_average_tau)
@@ -128,17 +116,17 @@ class SACfD(SAC):
         self._actor_refills = False
         super().__init__(*args, **kwargs)
 
+    def _excluded_save_params(self) -> list:
+        return [*super()._excluded_save_params(), *self.REMOVED_SETTINGS]
+
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if self.warm_start_steps and self.num_timesteps <= self.warm_start_steps:
-            return self._train_critic_only(gradient_steps, batch_size)
         self._train_steps(gradient_steps, batch_size)
         self._update_actor_average(gradient_steps)
 
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
-        # During a warm start, or a refill after a resume, the actor acts from the first
-        # step: SB3 would take uniform random actions until learning_starts.
-        actor_acts = self.warm_start_steps or self._actor_refills
-        return super()._sample_action(0 if actor_acts else learning_starts, action_noise, n_envs)
+        # During a refill after a resume the actor acts from the first step: SB3 would take
+        # uniform random actions until learning_starts.
+        return super()._sample_action(0 if self._actor_refills else learning_starts, action_noise, n_envs)
 
     def refill_before_training(self, steps: int) -> None:
         """No update for the next `steps` environment steps, while the current actor refills
@@ -146,21 +134,6 @@ class SACfD(SAC):
         otherwise draw every batch from the first few transitions."""
         self.learning_starts = self.num_timesteps + check_number("steps", steps, 0, whole=True)
         self._actor_refills = True
-
-    def _train_critic_only(self, gradient_steps: int, batch_size: int) -> None:
-        """The critic's updates of `warm_up_critic` on the mixed buffer; the actor and the
-        entropy coefficient stay."""
-        self._update_learning_rate([self.critic.optimizer])
-        loss = warm_up_critic(self, gradient_steps, batch_size)
-        self._n_updates += gradient_steps
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/critic_loss", loss)
-
-    def _update_learning_rate(self, optimizers) -> None:
-        super()._update_learning_rate(optimizers)
-        if self.actor_learning_rate_scale != 1.0:
-            for group in self.actor.optimizer.param_groups:
-                group["lr"] *= self.actor_learning_rate_scale
 
     def _update_actor_average(self, gradient_steps: int) -> None:
         if self.actor_average_tau <= 0:
@@ -200,7 +173,7 @@ class SACfD(SAC):
         if self.ent_coef_optimizer is not None:
             optimizers.append(self.ent_coef_optimizer)
         self._update_learning_rate(optimizers)
-        stats = {k: [] for k in ("critic_loss", "actor_loss", "bc_loss", "bc_share", "ent_coef")}
+        stats = {k: [] for k in ("critic_loss", "actor_loss", "bc_loss", "ent_coef")}
         for step in range(gradient_steps):
             data = buffer.sample(batch_size, env=self._vec_normalize_env)
             # The batch is online first, demonstrations last (DemoReplayBuffer.sample).
@@ -222,13 +195,7 @@ class SACfD(SAC):
             demo_obs = {k: v[demo] for k, v in data.observations.items()}
             mean, _, _ = self.actor.get_action_dist_params(demo_obs)
             deterministic = torch.tanh(mean)
-            expert = data.actions[demo]
-            with torch.no_grad():
-                q_expert = torch.cat(self.critic(demo_obs, expert), dim=1).min(dim=1)[0]
-                q_actor = torch.cat(self.critic(demo_obs, deterministic), dim=1).min(dim=1)[0]
-                better = (q_expert > q_actor).float()  # logged as bc_share under either filter
-                counted = better if self.bc_filter == "q" else torch.ones_like(better)
-            bc_loss = (counted * ((deterministic - expert) ** 2).sum(dim=1)).mean()
+            bc_loss = ((deterministic - data.actions[demo]) ** 2).sum(dim=1).mean()
             # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
             # same whatever the reward's scale.
             loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
@@ -239,7 +206,7 @@ class SACfD(SAC):
                 polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
                 polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
             for key, value in (("critic_loss", critic_loss), ("actor_loss", actor_loss), ("bc_loss", bc_loss),
-                               ("bc_share", better.mean()), ("ent_coef", ent_coef)):
+                               ("ent_coef", ent_coef)):
                 stats[key].append(float(value.item()))
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")

@@ -157,14 +157,11 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     with_demos = {}
     if demos:
         with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos.get("bc_weight", 0.0)),
-                          bc_filter=str(demos.get("bc_filter", "q")),
-                          warm_start_steps=demos.get("warm_start_steps") or 0,
                           replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
                                                     demo_capacity=int(demos["capacity"])))
     policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
     return SACfD(
         policy, env, **with_demos, actor_average_tau=float(algo.get("actor_average_tau") or 0.0),
-        actor_learning_rate_scale=float(algo.get("actor_learning_rate_scale", 1.0)),
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
