@@ -19,7 +19,8 @@ import numpy as np
 
 from cathsim_dmc.policies import BUILTIN_POLICIES
 from cathsim_dmc.policies import make_policy as make_builtin_policy
-from cathsim_dmc.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path  # noqa: F401  (public here too)
+from cathsim_dmc.run_files import (POLICY_FILE, is_temporary, load_normalizer,  # noqa: F401  (public here too)
+                                   normalizer_path)
 
 
 class CheckpointPolicy:

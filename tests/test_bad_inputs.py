@@ -97,7 +97,7 @@ def internal_run(tmp_path_factory):
     from stable_baselines3 import SAC
 
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.rl.train import FINAL_MODEL, write_policy_file
+    from cathsim_dmc.rl.checkpoints import FINAL_MODEL, write_policy_file
 
     run = tmp_path_factory.mktemp("internal_run")
     env = CathSimEnv("bca", "type1", obs="internal", max_steps=5)

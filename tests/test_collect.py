@@ -71,7 +71,8 @@ def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
     # observation drives with both (it cannot act at all without the observation).
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.train import build_sac, make_env_fn, write_policy_file
+    from cathsim_dmc.rl.checkpoints import write_policy_file
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
 
     trained_with = {"insertion_limit_margin_m": 0.01, "extra_observations": ["wire_slack"]}
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 3, **trained_with})])
@@ -97,7 +98,8 @@ def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
 def test_enn_agent_records_its_features(tmp_path):
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.train import build_sac, make_env_fn, write_policy_file
+    from cathsim_dmc.rl.checkpoints import write_policy_file
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "enn", 0, {"max_steps": 4})])
     algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,

@@ -70,7 +70,7 @@ def test_takeover_demonstrations_start_where_the_student_left_the_wire(env):
 def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.rl.train import best_record, keep_if_best
+    from cathsim_dmc.rl.checkpoints import best_record, keep_if_best
 
     model = SAC("MultiInputPolicy", env, buffer_size=100, learning_starts=10, device="cpu")
     sequence = [(1000, 0.2, -5.0, True), (2000, 0.1, 3.0, False), (3000, 0.2, -6.0, False),
@@ -81,10 +81,10 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     assert (tmp_path / "checkpoints" / "best.zip").is_file()
 
 
-@pytest.mark.parametrize("earlier_best, confirmed", [(None, True), (0.5, False)])
-def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path, earlier_best, confirmed):
-    """trainer.confirm_episodes: an evaluation scoring at least the best's rate runs that many
-    more episodes on their own seeds, and best.json holds the pooled score."""
+def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_the_best(tmp_path):
+    """trainer.eval_every: every evaluation resets episode i with seed 20_000 + seed + i,
+    writes a line of evaluations.jsonl, and best.json holds the best evaluation (success
+    rate first, then return; the earlier on a tie)."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -93,14 +93,9 @@ def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
-    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16,
-                policy_kwargs={"net_arch": [32, 32]})
-    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=40, eval_every=20,
-                   eval_episodes=2, confirm_episodes=3, checkpoint_every=0, progress_bar=False, video=False)
-    if earlier_best is not None:  # a best already held, above what this run's evaluations score
-        (tmp_path / "checkpoints").mkdir()
-        (tmp_path / "checkpoints" / "best.json").write_text(json.dumps(
-            {"step": 0, "success_rate": earlier_best, "mean_return": 0.0}))
+    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16, net_arch=[32, 32])
+    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=60, eval_every=20,
+                   eval_episodes=2, checkpoint_every=0, progress_bar=False, video=False)
     seeds = []
 
     class SeedLog(CathSimEnv):
@@ -114,12 +109,13 @@ def test_an_evaluation_that_ties_the_best_is_confirmed_on_more_episodes(tmp_path
                        make_eval_env=lambda: SeedLog("bca", "type1", obs="internal", max_steps=5))
     finally:
         env.close()
-    one = [20_000, 20_001] + ([50_000, 50_001, 50_002] if confirmed else [])
-    assert seeds == one + one  # the same confirmation seeds at each confirmation
+    assert seeds == [20_000, 20_001] * 3
     records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
-    assert [("confirm_success_rate" in r) for r in records] == [confirmed, confirmed]
+    assert [(r["step"], r["episodes"]) for r in records] == [(20, 2), (40, 2), (60, 2)]
+    top = max(records, key=lambda r: (r["success_rate"], r["mean_return"]))  # max keeps the first of equals
     best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
-    assert best.get("episodes") == (5 if confirmed else None)
+    assert best == {"step": top["step"], "success_rate": top["success_rate"], "mean_return": top["mean_return"],
+                    "episodes": 2}
 
 
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
@@ -231,7 +227,8 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from cathsim_dmc.rl.demos import add_transitions, expert_transitions
-    from cathsim_dmc.rl.train import build_sac, keep_if_best
+    from cathsim_dmc.rl.checkpoints import keep_if_best
+    from cathsim_dmc.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
     algo = dict(learning_rate=1e-3, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
@@ -292,8 +289,7 @@ def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
-    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16,
-                policy_kwargs={"net_arch": [32, 32]})
+    algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16, net_arch=[32, 32])
     runs = {}
     for total in (40, 80):
         trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=total, eval_every=20,
