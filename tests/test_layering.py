@@ -111,3 +111,32 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
                 continue
             offenders += [(path.name, n) for n in names if n.split(".")[0] in ("dm_control", "mujoco")]
     assert offenders == []
+
+
+def test_policies_evaluation_and_the_simulation_load_no_learning_library():
+    # The scripted policies, the evaluation and the simulation (tasks/, entities/), with
+    # every module they reach (deferred imports included), run without SB3 or torch and
+    # never reach into the learning layer (rl/, supervised/, agents.py, which loads checkpoints).
+    files = {_module_name(p): p for folder in (PACKAGE, "tasks") for p in (ROOT / folder).rglob("*.py")}
+    graph = import_graph()
+    starts = [f"{PACKAGE}.policies", f"{PACKAGE}.evaluation"]
+    starts += [m for m in graph if m.startswith((f"{PACKAGE}.tasks", f"{PACKAGE}.entities"))]
+    reached, stack = set(), list(starts)
+    while stack:
+        module = stack.pop()
+        if module not in reached:
+            reached.add(module)
+            stack.extend(graph[module])
+    learning = (f"{PACKAGE}.rl", f"{PACKAGE}.supervised", f"{PACKAGE}.agents")
+    offenders = sorted(m for m in reached if m.startswith(learning))
+    for module in sorted(reached):
+        for node in ast.walk(ast.parse(files[module].read_text())):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            else:
+                continue
+            offenders += [(module, n) for n in names if n.split(".")[0] in ("stable_baselines3", "torch")]
+    assert len(reached) > 20 and f"{PACKAGE}.observables" in reached  # the walk follows the imports
+    assert offenders == []
