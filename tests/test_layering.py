@@ -113,6 +113,14 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
     assert offenders == []
 
 
+def _top_level_imports(path: Path) -> set:
+    """The first name of every module `path` imports, deferred imports included."""
+    tree = ast.parse(path.read_text())
+    plain = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    named = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+    return {name.split(".")[0] for name in plain | named}
+
+
 def test_policies_evaluation_and_the_simulation_load_no_learning_library():
     # The scripted policies, the evaluation and the simulation (tasks/, entities/), with
     # every module they reach (deferred imports included), run without SB3 or torch and
@@ -127,16 +135,9 @@ def test_policies_evaluation_and_the_simulation_load_no_learning_library():
         if module not in reached:
             reached.add(module)
             stack.extend(graph[module])
+    assert len(reached) > 20 and f"{PACKAGE}.observables" in reached  # the walk follows the imports
     learning = (f"{PACKAGE}.rl", f"{PACKAGE}.supervised", f"{PACKAGE}.agents")
     offenders = sorted(m for m in reached if m.startswith(learning))
-    for module in sorted(reached):
-        for node in ast.walk(ast.parse(files[module].read_text())):
-            if isinstance(node, ast.Import):
-                names = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                names = [node.module]
-            else:
-                continue
-            offenders += [(module, n) for n in names if n.split(".")[0] in ("stable_baselines3", "torch")]
-    assert len(reached) > 20 and f"{PACKAGE}.observables" in reached  # the walk follows the imports
+    libraries = {"stable_baselines3", "torch"}
+    offenders += sorted((m, name) for m in reached for name in _top_level_imports(files[m]) & libraries)
     assert offenders == []
