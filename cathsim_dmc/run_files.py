@@ -1,5 +1,6 @@
-"""Files beside a checkpoint, shared by their writers (rl/train.py, rl/bc.py, rl/collect.py)
-and their readers (policies.py, rl/data.py), so that neither side imports the other.
+"""Files beside a checkpoint, shared by their writers (rl/checkpoints.py, supervised/bc.py,
+supervised/collect.py) and their readers (agents.py, supervised/data.py), so that neither
+side imports the other.
 
 Every file is written under a temporary name and renamed into place, so a reader never
 sees half a file. A temporary name is hidden and carries `.tmp` (`.last.tmp.zip`), keeps

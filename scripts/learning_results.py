@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from cathsim_dmc.rl.train import checkpoint_step
+from cathsim_dmc.rl.checkpoints import checkpoint_step
 
 DEMOS = ["demos=expert"]
 # demos=expert is the training default: the variants without demonstrations must say so.

@@ -78,7 +78,7 @@ def imitation_table(runs: dict) -> tuple:
 
 
 def force_table(folder) -> tuple:
-    from cathsim_dmc.rl.force import markdown
+    from cathsim_dmc.supervised.force import markdown
 
     path = Path(folder) / "force.json"
     if not path.is_file():

@@ -97,7 +97,7 @@ def internal_run(tmp_path_factory):
     from stable_baselines3 import SAC
 
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.rl.train import FINAL_MODEL, write_policy_file
+    from cathsim_dmc.rl.checkpoints import FINAL_MODEL, write_policy_file
 
     run = tmp_path_factory.mktemp("internal_run")
     env = CathSimEnv("bca", "type1", obs="internal", max_steps=5)
@@ -129,14 +129,14 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
 
 
 def _corrupt_manifest_collect(tmp_path):
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     collect(tmp_path / "data", "bca", "type1", "forward", episodes=1, episodes_per_shard=1, seed=0)
 
 
 def _corrupt_manifest_read(tmp_path):
-    from cathsim_dmc.rl.data import expand_paths
+    from cathsim_dmc.supervised.data import expand_paths
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     expand_paths(tmp_path / "data")

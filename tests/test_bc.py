@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc.rl.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
+from cathsim_dmc.supervised.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
 
 
 def _demonstrations(episodes=4, steps=8, seed=0):
@@ -77,7 +77,7 @@ def test_distillation_regresses_z():
 
 
 def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
-    from cathsim_dmc.policies import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents import CheckpointPolicy, make_policy
 
     net = BCNetwork()
     with torch.no_grad():
@@ -91,10 +91,16 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
     action = policy({"pixels": np.zeros((1, 80, 80), np.uint8)}, None)
     assert action.tolist() == [1.0, -0.25]
     assert load_bc_policy(tmp_path / "run" / "bc_policy.pt").image_key == "pixels"
+    # The scripted policies' module loads no checkpoint: a path there says where to go.
+    from cathsim_dmc import policies
+
+    with pytest.raises(ValueError, match="cathsim_dmc.agents.make_policy"):
+        policies.make_policy(str(tmp_path / "run"))
+    assert isinstance(make_policy("forward"), policies.ForwardPolicy)
 
 
 def test_stacked_frames_are_the_images_before_in_the_same_episode():
-    from cathsim_dmc.rl.data import stack_frames
+    from cathsim_dmc.supervised.data import stack_frames
 
     images = np.arange(7, dtype=np.uint8).reshape(7, 1, 1, 1) * np.ones((1, 1, 2, 2), np.uint8)
     episode = np.array([0, 0, 0, 0, 1, 1, 1])
@@ -111,7 +117,7 @@ def test_stacked_frames_are_the_images_before_in_the_same_episode():
 
 
 def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
-    from cathsim_dmc.policies import make_policy
+    from cathsim_dmc.agents import make_policy
 
     class Episode:  # what CheckpointPolicy reads of an environment: the step count
         def __init__(self):
@@ -142,7 +148,7 @@ def _bc(args, cwd):
 
 
 def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=3, episodes_per_shard=3, seed=0,
             task_options={"max_steps": 10}, show_progress=False)

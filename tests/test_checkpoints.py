@@ -1,6 +1,7 @@
 """Checkpoints as one unit: model, replay buffer and step count written together, resumed
 together, and a run killed at any point (inside any write) resumes from a matching pair."""
 
+import json
 import os
 import signal
 import subprocess
@@ -13,9 +14,10 @@ import pytest
 import torch
 
 from cathsim_dmc import run_files
+from cathsim_dmc.rl import checkpoints
 from cathsim_dmc.rl import train as training
 
-STEPS = 40  # one session of the tiny run below
+STEPS = 40  # the tiny run below; a resumed run adds as many again
 
 
 class Killed(BaseException):
@@ -32,7 +34,7 @@ def _configs(**trainer):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     # A small network keeps each update cheap; what is checked does not depend on its size.
-    algo.update(learning_starts=10, batch_size=16, policy_kwargs={"net_arch": [32, 32]})
+    algo.update(learning_starts=10, batch_size=16, net_arch=[32, 32])
     base = OmegaConf.to_container(cfg.trainer, resolve=True)
     base.update(eval_every=0, progress_bar=False, video=False, save_replay_buffer=True, checkpoint_every=20,
                 torch_threads=1)
@@ -61,13 +63,13 @@ def _same_weights(a: dict, b: dict) -> bool:
 def test_resume_continues_from_the_saved_weights_buffer_and_step_count(tmp_path):
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cathsim_dmc.rl.demos import SACfD
+    from cathsim_dmc.rl.sacfd import SACfD
 
     first = _train(tmp_path, STEPS)
-    ckpt = tmp_path / training.CHECKPOINT_DIR
-    assert training.checkpoint_step(ckpt / training.LAST_CHECKPOINT) == STEPS
-    assert sorted(p.name for p in ckpt.glob(training.REPLAY_BUFFER_GLOB)) == [f"replay_buffer_step_{STEPS}.pkl"]
-    saved = SACfD.load(ckpt / training.LAST_CHECKPOINT)
+    ckpt = tmp_path / checkpoints.CHECKPOINT_DIR
+    assert checkpoints.checkpoint_step(ckpt / checkpoints.LAST_CHECKPOINT) == STEPS
+    assert sorted(p.name for p in ckpt.glob(checkpoints.REPLAY_BUFFER_GLOB)) == [f"replay_buffer_step_{STEPS}.pkl"]
+    saved = SACfD.load(ckpt / checkpoints.LAST_CHECKPOINT)
     first_rows = first.model.replay_buffer.actions[:STEPS].copy()
 
     class Spy(BaseCallback):
@@ -91,7 +93,7 @@ def test_resume_continues_from_the_saved_weights_buffer_and_step_count(tmp_path)
     buffer = second.model.replay_buffer
     rows = buffer.buffer_size if buffer.full else buffer.pos  # sized for the run: exactly full at its end
     assert rows == 2 * STEPS and np.array_equal(buffer.actions[:STEPS], first_rows)
-    assert training.checkpoint_step(ckpt / training.LAST_CHECKPOINT) == 2 * STEPS
+    assert checkpoints.checkpoint_step(ckpt / checkpoints.LAST_CHECKPOINT) == 2 * STEPS
 
 
 def test_a_run_killed_inside_any_checkpoint_write_resumes_from_a_matching_pair(tmp_path, monkeypatch):
@@ -124,11 +126,11 @@ def test_a_run_killed_inside_any_checkpoint_write_resumes_from_a_matching_pair(t
         with pytest.raises(Killed):
             _train(run_dir, STEPS)
         monkeypatch.setattr(run_files, "write_atomic", real_write)
-        ckpt = run_dir / training.CHECKPOINT_DIR
-        if not (ckpt / training.LAST_CHECKPOINT).is_file():  # killed before the first checkpoint committed
+        ckpt = run_dir / checkpoints.CHECKPOINT_DIR
+        if not (ckpt / checkpoints.LAST_CHECKPOINT).is_file():  # killed before the first checkpoint committed
             continue
         assert any(run_files.is_temporary(p) for p in [*ckpt.iterdir(), *run_dir.iterdir()])
-        last, step, buffer_file = training.resume_checkpoint(ckpt)
+        last, step, buffer_file = checkpoints.resume_checkpoint(ckpt)
         assert buffer_file == ckpt / f"replay_buffer_step_{step}.pkl", (kill_at, writes[kill_at])
         assert not any(run_files.is_temporary(p) for p in ckpt.iterdir())
         resumed = _train(run_dir, STEPS, resume=True)
@@ -143,7 +145,7 @@ def test_a_run_resumed_without_its_buffer_refills_it_before_training_goes_on(tmp
     from stable_baselines3.common.callbacks import BaseCallback
 
     _train(tmp_path, STEPS)
-    for buffer in (tmp_path / training.CHECKPOINT_DIR).glob(training.REPLAY_BUFFER_GLOB):
+    for buffer in (tmp_path / checkpoints.CHECKPOINT_DIR).glob(checkpoints.REPLAY_BUFFER_GLOB):
         buffer.unlink()
 
     class Updates(BaseCallback):
@@ -167,23 +169,65 @@ def test_a_run_resumed_without_its_buffer_refills_it_before_training_goes_on(tmp
 
 def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
     _train(tmp_path, STEPS)
-    ckpt = tmp_path / training.CHECKPOINT_DIR
+    ckpt = tmp_path / checkpoints.CHECKPOINT_DIR
     (ckpt / f"replay_buffer_step_{STEPS}.pkl").rename(ckpt / "replay_buffer_step_20.pkl")
     with pytest.raises(RuntimeError, match=r"last\.zip is at step 40 but the replay buffer .*replay_buffer_step_20"):
-        training.resume_checkpoint(ckpt)
+        checkpoints.resume_checkpoint(ckpt)
     # An older run's single replay_buffer.pkl is checked by its contents instead.
-    (ckpt / "replay_buffer_step_20.pkl").rename(ckpt / training.LEGACY_REPLAY_BUFFER)
-    from cathsim_dmc.rl.demos import SACfD
+    (ckpt / "replay_buffer_step_20.pkl").rename(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
+    from cathsim_dmc.rl.sacfd import SACfD
 
-    model = SACfD.load(ckpt / training.LAST_CHECKPOINT)
-    model.load_replay_buffer(ckpt / training.LEGACY_REPLAY_BUFFER)
-    training.check_replay_buffer_step(model.replay_buffer, STEPS, "buffer")
+    model = SACfD.load(ckpt / checkpoints.LAST_CHECKPOINT)
+    model.load_replay_buffer(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
+    checkpoints.check_replay_buffer_step(model.replay_buffer, STEPS, "buffer")
     with pytest.raises(RuntimeError, match=r"holds 40 transitions \(full\), not the 30 of the checkpoint"):
-        training.check_replay_buffer_step(model.replay_buffer, 30, "buffer")
+        checkpoints.check_replay_buffer_step(model.replay_buffer, 30, "buffer")
+
+
+def _with_saved_attributes(checkpoint, **attributes):
+    """Rewrite an SB3 checkpoint as if its model had carried `attributes` when it was saved."""
+    with zipfile.ZipFile(checkpoint) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(members["data"])
+    data.update(attributes)
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(checkpoint, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+
+
+def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
+    """Checkpoints saved before the Q-filter, the warm start and the slower actor were
+    removed carry those settings, and SB3's load sets them on the model: nothing may read
+    them (the actor learns at the full rate from the first step) and they are not saved again."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from cathsim_dmc.rl.sacfd import SACfD
+
+    _train(tmp_path, STEPS)
+    last = tmp_path / checkpoints.CHECKPOINT_DIR / checkpoints.LAST_CHECKPOINT
+    removed = dict(bc_filter="q", warm_start_steps=10 * STEPS, actor_learning_rate_scale=0.3)
+    _with_saved_attributes(last, **removed)
+    assert SACfD.load(last).warm_start_steps == 10 * STEPS  # what SB3 does with them
+
+    class Actor(BaseCallback):
+        def _on_training_start(self):
+            self.start = _weights(self.model.actor)
+
+        def _on_step(self):
+            return True
+
+    spy = Actor()
+    resumed = _train(tmp_path, 2 * STEPS, resume=True, callbacks=[spy])
+    assert not _same_weights(spy.start, _weights(resumed.model.actor))  # a warm start would have held it
+    algo, _ = _configs()
+    assert resumed.model.actor.optimizer.param_groups[0]["lr"] == algo["learning_rate"]
+    with zipfile.ZipFile(last) as archive:
+        assert not set(removed) & set(json.loads(archive.read("data")))
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):
-    from cathsim_dmc.rl.data import expand_paths
+    from cathsim_dmc.supervised.data import expand_paths
     from cathsim_dmc.trajectory import save_npz
 
     save_npz(tmp_path / "shard_00000.npz", {"x": np.zeros(3)})
@@ -222,6 +266,6 @@ def test_cathsim_train_killed_at_random_moments_resumes_each_time(tmp_path):
     _, stderr = process.communicate(timeout=900)
     assert process.returncode == 0, stderr[-2000:]
     ckpt = run / "checkpoints"
-    assert training.checkpoint_step(ckpt / "last.zip") == 400
-    assert [p.name for p in ckpt.glob(training.REPLAY_BUFFER_GLOB)] == ["replay_buffer_step_400.pkl"]
+    assert checkpoints.checkpoint_step(ckpt / "last.zip") == 400
+    assert [p.name for p in ckpt.glob(checkpoints.REPLAY_BUFFER_GLOB)] == ["replay_buffer_step_400.pkl"]
     assert not any(run_files.is_temporary(p) for p in ckpt.iterdir())

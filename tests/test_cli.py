@@ -96,7 +96,7 @@ def _compose(config_name, overrides=()):
 
 def test_one_function_turns_every_tools_config_into_environment_arguments():
     from cathsim_dmc.cli._common import env_kwargs
-    from cathsim_dmc.policies import CheckpointPolicy
+    from cathsim_dmc.agents import CheckpointPolicy
 
     train = _compose("train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7", "+obs.extra=[wire_slack]",
                                "task.insertion_limit_margin_m=0.02"])

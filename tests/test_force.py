@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc.rl.force import ForceConfig, ForceNetwork, markdown, nested_subsets, train_force_sizes
+from cathsim_dmc.supervised.force import ForceConfig, ForceNetwork, markdown, nested_subsets, train_force_sizes
 
 
 def _synthetic(episodes=24, steps=10, seed=0):
@@ -53,7 +53,7 @@ def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
 def test_test_outliers_are_also_scored_apart():
     images, force, episodes = _synthetic(episodes=10, steps=4)
     cfg = ForceConfig(sizes=(100,), epochs=1, min_updates=5, batch_size=16, test_fraction=0.2, outlier_n=10.0)
-    from cathsim_dmc.rl.data import split_by_episode
+    from cathsim_dmc.supervised.data import split_by_episode
 
     _, test_rows = split_by_episode(episodes, cfg.test_fraction, cfg.seed)
     force = force.copy()
@@ -89,7 +89,7 @@ def _force(args, cwd):
 
 
 def test_cli_reports_mse_per_size(tmp_path):
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     collect(tmp_path / "data", "lcca", "type1", "forward", episodes=3, episodes_per_shard=2, seed=0,
             task_options={"max_steps": 8}, show_progress=False)

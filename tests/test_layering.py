@@ -74,7 +74,7 @@ def cycles(graph: dict) -> list:
 def test_the_graph_sees_deferred_imports():
     # Most of the package imports inside functions; a graph blind to them would pass anything.
     graph = import_graph()
-    assert "cathsim_dmc.evaluation" in graph["cathsim_dmc.rl.collect"]
+    assert "cathsim_dmc.evaluation" in graph["cathsim_dmc.supervised.collect"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
@@ -118,7 +118,8 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
 # What an entity may not import: the image observables and their renderers, and every
 # layer built on entities (tasks, the Gymnasium adapter, learning, the command line).
 ENTITY_FORBIDDEN = ("cathsim_dmc.observables", "cathsim_dmc.raster", "cathsim_dmc._gl", "cathsim_dmc.tasks",
-                    "cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.cli")
+                    "cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.supervised", "cathsim_dmc.agents",
+                    "cathsim_dmc.cli")
 
 
 def _imported_names(path: Path) -> list:
@@ -175,4 +176,34 @@ def test_physics_and_fidelity_never_import_the_gymnasium_adapter():
     # fidelity measures the model through the composer environment (cathsim_dmc.tasks).
     offenders = [(name, imported) for name in ("physics.py", "fidelity.py", "arena.py")
                  for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.gym")]
+    assert offenders == []
+
+
+def _top_level_imports(path: Path) -> set:
+    """The first name of every module `path` imports, deferred imports included."""
+    tree = ast.parse(path.read_text())
+    plain = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    named = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+    return {name.split(".")[0] for name in plain | named}
+
+
+def test_policies_evaluation_and_the_simulation_load_no_learning_library():
+    # The scripted policies, the evaluation and the simulation (tasks/, entities/), with
+    # every module they reach (deferred imports included), run without SB3 or torch and
+    # never reach into the learning layer (rl/, supervised/, agents.py, which loads checkpoints).
+    files = {_module_name(p): p for folder in (PACKAGE, "tasks") for p in (ROOT / folder).rglob("*.py")}
+    graph = import_graph()
+    starts = [f"{PACKAGE}.policies", f"{PACKAGE}.evaluation"]
+    starts += [m for m in graph if m.startswith((f"{PACKAGE}.tasks", f"{PACKAGE}.entities"))]
+    reached, stack = set(), list(starts)
+    while stack:
+        module = stack.pop()
+        if module not in reached:
+            reached.add(module)
+            stack.extend(graph[module])
+    assert len(reached) > 20 and f"{PACKAGE}.observables" in reached  # the walk follows the imports
+    learning = (f"{PACKAGE}.rl", f"{PACKAGE}.supervised", f"{PACKAGE}.agents")
+    offenders = sorted(m for m in reached if m.startswith(learning))
+    libraries = {"stable_baselines3", "torch"}
+    offenders += sorted((m, name) for m in reached for name in _top_level_imports(files[m]) & libraries)
     assert offenders == []

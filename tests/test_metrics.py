@@ -89,7 +89,7 @@ def test_force_and_safety_use_the_step_mean():
 
 def test_trajectory_dataset_round_trip(tmp_path):
     """Recorder -> npz -> dataset: images scaled to [0, 1], held-out split by whole episodes."""
-    from cathsim_dmc.rl.data import TrajectoryDataset, split_by_episode
+    from cathsim_dmc.supervised.data import TrajectoryDataset, split_by_episode
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
     recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="test", record_observations=True)

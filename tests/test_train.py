@@ -65,7 +65,8 @@ def test_trained_checkpoint_evaluates_with_cathsim_eval_under_its_own_physics(tm
 def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.train import build_sac, grow_replay_buffer, make_env_fn
+    from cathsim_dmc.rl.replay import grow_replay_buffer
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
     algo = dict(learning_rate=3e-4, buffer_size=40, learning_starts=100, batch_size=8, tau=0.005, gamma=0.99,
@@ -81,6 +82,41 @@ def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
     assert not buffer.observations["joint_pos"][25:].any()
     grow_replay_buffer(model, 50)  # never shrinks
     assert model.replay_buffer is buffer
+    env.close()
+
+
+def test_the_periodic_evaluation_keeps_sb3s_evaluation_callbacks():
+    """PeriodicEvaluation is an EvalCallback: SB3's callback_after_eval runs after every
+    evaluation, and callback_on_new_best (here SB3's reward threshold, reading the
+    evaluation's best_mean_reward) when one is the best so far."""
+    from stable_baselines3.common.callbacks import BaseCallback, StopTrainingOnRewardThreshold
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.rl.callbacks import PeriodicEvaluation
+    from cathsim_dmc.rl.train import build_sac, make_env_fn
+
+    class Calls(BaseCallback):
+        def _on_step(self):  # on_step counts the calls in n_calls
+            return True
+
+    env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
+    algo = dict(learning_rate=3e-4, buffer_size=200, learning_starts=1000, batch_size=8, tau=0.005, gamma=0.99,
+                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
+                net_arch=[32, 32], share_features_extractor=False)
+    model = build_sac(env, algo, 0, "cpu", None)
+    after = Calls()
+    evaluation = PeriodicEvaluation(CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0,
+                                    callback_after_eval=after)
+    model.learn(30, callback=evaluation)
+    assert after.n_calls == 3
+    # 5-step episodes never reach the target: the best is the highest return.
+    assert np.isfinite(evaluation.last_mean_reward) and evaluation.best_mean_reward >= evaluation.last_mean_reward
+    stop = StopTrainingOnRewardThreshold(reward_threshold=-1e9)  # any best stops training
+    evaluation = PeriodicEvaluation(CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0,
+                                    callback_on_new_best=stop)
+    model.learn(100, callback=evaluation, reset_num_timesteps=False)
+    assert model.num_timesteps == 40 and stop.n_calls == 1
     env.close()
 
 

@@ -157,7 +157,7 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc import tasks
-    from cathsim_dmc.policies import CheckpointPolicy
+    from cathsim_dmc.agents import CheckpointPolicy
 
     task = cfg.task
     kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,

@@ -27,7 +27,7 @@ def dataset_paths(data) -> list:
 
 
 def dataset_manifests(paths) -> list:
-    from cathsim_dmc.rl.data import MANIFEST, read_manifest
+    from cathsim_dmc.supervised.data import MANIFEST, read_manifest
 
     return [read_manifest(Path(p) / MANIFEST) for p in paths if (Path(p) / MANIFEST).is_file()]
 
@@ -42,9 +42,9 @@ def run(cfg) -> dict:
     from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy
-    from cathsim_dmc.rl.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
-    from cathsim_dmc.rl.data import has_keys, load_arrays, stack_frames
+    from cathsim_dmc.agents import CheckpointPolicy
+    from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
+    from cathsim_dmc.supervised.data import has_keys, load_arrays, stack_frames
 
     image_key = str(cfg.bc.image_key)
     if image_key not in PRESET_FOR_IMAGE:

@@ -5,7 +5,7 @@
     cathsim-collect out=outputs/collect/bca-type1/<run> episodes=400       # resume or grow
 
 Writes a dataset folder (manifest.json + shard_<n>.npz; layout in
-cathsim_dmc/rl/collect.py) that cathsim-bc and cathsim-force read.
+cathsim_dmc/supervised/collect.py) that cathsim-bc and cathsim-force read.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ def run(cfg) -> dict:
 
     from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
-    from cathsim_dmc.rl.collect import collect
+    from cathsim_dmc.supervised.collect import collect
 
     kwargs = env_kwargs(cfg)
-    # The dataset always records every modality (rl/collect.py); the obs group gives the
+    # The dataset always records every modality (supervised/collect.py); the obs group gives the
     # image options, and a trained policy's own options win inside `collect`.
     images = pick(kwargs, IMAGE_OPTIONS)
     options = {k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs", *IMAGE_OPTIONS)}

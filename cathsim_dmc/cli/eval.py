@@ -20,7 +20,7 @@ def evaluate(cfg) -> dict:
     from cathsim_dmc.cli._common import env_kwargs, explicit_override
     from cathsim_dmc.evaluation import METRICS_MD, check_report_options, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents import CheckpointPolicy, make_policy
 
     check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)
     seed = check_number("seed", cfg.seed, 0, whole=True)

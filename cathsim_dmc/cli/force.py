@@ -29,8 +29,8 @@ def run(cfg) -> dict:
     from tqdm import tqdm
 
     from cathsim_dmc.cli.bc import dataset_paths
-    from cathsim_dmc.rl.data import has_keys, load_arrays
-    from cathsim_dmc.rl.force import ForceConfig, markdown, train_force_sizes
+    from cathsim_dmc.supervised.data import has_keys, load_arrays
+    from cathsim_dmc.supervised.force import ForceConfig, markdown, train_force_sizes
 
     if cfg.image_key not in IMAGE_KEYS:
         raise ValueError(f"image_key={cfg.image_key!r}; choose one of {list(IMAGE_KEYS)}")

@@ -26,8 +26,9 @@ def run(cfg) -> dict:
     from cathsim_dmc.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import CheckpointPolicy, load_checkpoint_policy
-    from cathsim_dmc.rl.train import BEST_MODEL, CHECKPOINT_DIR, best_record, check_training, make_vec_env, train
+    from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
+    from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, best_record
+    from cathsim_dmc.rl.train import check_training, make_vec_env, train
 
     resume = cfg.get("resume")
     if resume:

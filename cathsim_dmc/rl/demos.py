@@ -1,30 +1,27 @@
-"""Learning from demonstrations: expert transitions mixed into every SAC batch.
+"""Demonstrations: expert transitions, and a replay buffer that mixes them into every batch.
 
-    buffer = model.replay_buffer                  # a DemoReplayBuffer (see build_sac)
+    buffer = model.replay_buffer                  # a DemoReplayBuffer (see rl/train.py build_sac)
     add_transitions(buffer, expert_transitions(env, episodes=20, seed=0))
-    pretrain_actor(model, steps=2000)             # behavioural cloning of the actor's mean
-    warm_up_critic(model, steps=1000)             # critic-only updates, actor fixed
 
 The mix is symmetric sampling as in RLPD (Ball et al., 2023): a fixed share of every
 batch comes from the demonstrations, the rest from the agent's own experience, so the
 expert's way to the target keeps its weight however much the agent has collected.
 Demonstrations come from the privileged scripted expert run in the training environment
 itself (same reward, same observations), so their rewards are what the agent would get.
+How the agent learns from them (pre-training, the cloning term) is `cathsim_dmc.rl.sacfd`.
+
+SB3 checkpoints name `DemoReplayBuffer` by this module's path (their replay_buffer_class):
+it stays here so that saved runs keep loading.
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 import torch
-from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import DictReplayBuffer
-from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples
-
-from cathsim_dmc.checks import check_number
 
 
 class DemoReplayBuffer(DictReplayBuffer):
@@ -179,64 +176,6 @@ def add_transitions(buffer: DemoReplayBuffer, transitions: Transitions) -> None:
                          [{"TimeLimit.truncated": bool(transitions.truncated[i])}])
 
 
-def pretrain_actor(model, steps: int, batch_size: int | None = None) -> float:
-    """Behavioural cloning of the SAC actor on the demonstrations; returns the last loss.
-
-    The loss is the squared error of the actor's deterministic action (tanh of the mean)
-    against the expert's action; the log standard deviation is left to SAC's entropy term.
-    """
-    buffer = model.replay_buffer
-    batch_size = int(batch_size or model.batch_size)
-    actor = model.actor
-    actor.set_training_mode(True)
-    loss_value = float("nan")
-    for _ in range(int(steps)):
-        data = buffer.demos.sample(batch_size, env=model._vec_normalize_env)
-        mean, _, _ = actor.get_action_dist_params(data.observations)
-        loss = torch.nn.functional.mse_loss(torch.tanh(mean), data.actions)
-        actor.optimizer.zero_grad()
-        loss.backward()
-        actor.optimizer.step()
-        loss_value = float(loss.item())
-    actor.set_training_mode(False)
-    return loss_value
-
-
-def warm_up_critic(model, steps: int, batch_size: int | None = None) -> float:
-    """Critic-only SAC updates on the mixed buffer, the actor held fixed; returns the last loss.
-
-    A critic trained against a pre-trained actor starts the actor's updates from values
-    that already favour the expert's actions, instead of undoing the pre-training.
-    """
-    batch_size = int(batch_size or model.batch_size)
-    ent_coef = (torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None
-                else model.ent_coef_tensor)
-    model.critic.set_training_mode(True)
-    loss_value = float("nan")
-    for _ in range(int(steps)):
-        data = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
-        loss = _critic_step(model, data, ent_coef)
-        polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
-        loss_value = float(loss.item())
-    model.critic.set_training_mode(False)
-    return loss_value
-
-
-def _critic_step(model, data, ent_coef) -> torch.Tensor:
-    """One soft Bellman update of `model`'s twin critics on `data`; returns the loss."""
-    with torch.no_grad():
-        next_actions, next_log_prob = model.actor.action_log_prob(data.next_observations)
-        next_q = torch.cat(model.critic_target(data.next_observations, next_actions), dim=1)
-        next_q = next_q.min(dim=1, keepdim=True)[0] - ent_coef * next_log_prob.reshape(-1, 1)
-        discounts = data.discounts if data.discounts is not None else model.gamma
-        target_q = data.rewards + (1 - data.dones) * discounts * next_q
-    loss = 0.5 * sum(torch.nn.functional.mse_loss(q, target_q) for q in model.critic(data.observations, data.actions))
-    model.critic.optimizer.zero_grad()
-    loss.backward()
-    model.critic.optimizer.step()
-    return loss
-
-
 def dataset_transitions(paths, task, observation_space, episodes: int | None = None) -> Transitions:
     """Demonstrations from `cathsim-collect` data (folders or trajectory files), rewarded
     by `task` (a `Navigate` built like the training one) from the recorded tip positions,
@@ -245,7 +184,7 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
     `observation_space` (the training env's) names the observation keys to read; the
     dataset must hold them (cathsim-collect records every modality) at the same sizes.
     """
-    from cathsim_dmc.rl.data import load_arrays
+    from cathsim_dmc.supervised.data import load_arrays
 
     if task.aim_potential_weight:
         # The aim's potential needs the tip's bend, which datasets do not record.
@@ -284,174 +223,7 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
 
 def _episode_start_tips(paths) -> np.ndarray:
     """start_tip_position_m of every episode, in the global episode order of load_arrays."""
-    from cathsim_dmc.rl.data import expand_paths, read_keys
+    from cathsim_dmc.supervised.data import expand_paths, read_keys
 
     return np.concatenate([read_keys(p, ("start_tip_position_m",))["start_tip_position_m"]
                            for p in expand_paths(paths)]).astype(float)
-
-
-class SACfD(SAC):
-    """SAC whose actor is also pulled towards the expert's actions on demonstration states.
-
-    The actor's loss gains `bc_weight` x mean|Q| x the squared error between its
-    deterministic action and the expert's, on the demonstration part of the batch, counted only where
-    the critic rates the expert's action above the actor's (the Q-filter of Nair et al.,
-    2018): the agent imitates until it has found something the critic values more. With
-    `bc_filter="none"` it is counted on every demonstration state (TD3+BC's unfiltered
-    term, Fujimoto and Gu, 2021), which keeps the actor near the expert even where the
-    critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
-
-    With `warm_start_steps` > 0 the online phase starts warm: for that many environment
-    steps the (pre-trained) actor itself takes the actions, stochastically, instead of
-    SB3's uniform random actions before `learning_starts`, and the updates in that time
-    train the critic only. The critic, warmed up on the expert's actions alone, first
-    learns the values of the agent's own before the actor follows it (the warm-up of
-    WSRL, Zhou et al., 2024, with the actor held still).
-
-    `actor_learning_rate_scale` < 1 gives the actor a smaller learning rate than the
-    critic (the critic's follows `learning_rate`), so the policy follows the critic more
-    slowly.
-
-    With `actor_average_tau` > 0 it also keeps an exponential moving average of the
-    actor's weights (each update moves it `actor_average_tau` of the way to the current
-    actor: about 1/tau updates of memory), which `averaged_actor()` swaps in, e.g. for
-    deterministic evaluation: the averaged policy does not follow every swing of the
-    critic (weight averaging in RL: Nikishin et al., 2018).
-    """
-
-    BC_FILTERS = ("q", "none")
-
-    def __init__(self, *args, bc_weight: float = 0.0, bc_filter: str = "q", actor_average_tau: float = 0.0,
-                 actor_learning_rate_scale: float = 1.0, warm_start_steps: int = 0, **kwargs):
-        self.warm_start_steps = check_number("warm_start_steps", warm_start_steps, 0, whole=True)
-        self.bc_weight = float(bc_weight)
-        if bc_filter not in self.BC_FILTERS:
-            raise ValueError(f"bc_filter={bc_filter!r}; valid: {', '.join(self.BC_FILTERS)}")
-        self.bc_filter = bc_filter
-        if not 0.0 < float(actor_learning_rate_scale) <= 1.0:
-            raise ValueError(f"actor_learning_rate_scale={actor_learning_rate_scale!r} must be within (0, 1]")
-        self.actor_learning_rate_scale = float(actor_learning_rate_scale)
-        if not 0.0 <= float(actor_average_tau) <= 1.0:
-            raise ValueError(f"actor_average_tau={actor_average_tau!r} must be within [0, 1] (0: no average)")
-        self.actor_average_tau = float(actor_average_tau)
-        self._actor_average = None  # name -> tensor, like actor.state_dict()
-        self._actor_refills = False
-        super().__init__(*args, **kwargs)
-
-    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if self.warm_start_steps and self.num_timesteps <= self.warm_start_steps:
-            return self._train_critic_only(gradient_steps, batch_size)
-        self._train_steps(gradient_steps, batch_size)
-        self._update_actor_average(gradient_steps)
-
-    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
-        # During a warm start, or a refill after a resume, the actor acts from the first
-        # step: SB3 would take uniform random actions until learning_starts.
-        actor_acts = self.warm_start_steps or self._actor_refills
-        return super()._sample_action(0 if actor_acts else learning_starts, action_noise, n_envs)
-
-    def refill_before_training(self, steps: int) -> None:
-        """No update for the next `steps` environment steps, while the current actor refills
-        the replay buffer: for a run resumed without its buffer, whose first updates would
-        otherwise draw every batch from the first few transitions."""
-        self.learning_starts = self.num_timesteps + check_number("steps", steps, 0, whole=True)
-        self._actor_refills = True
-
-    def _train_critic_only(self, gradient_steps: int, batch_size: int) -> None:
-        """The critic's updates of `warm_up_critic` on the mixed buffer; the actor and the
-        entropy coefficient stay."""
-        self._update_learning_rate([self.critic.optimizer])
-        loss = warm_up_critic(self, gradient_steps, batch_size)
-        self._n_updates += gradient_steps
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/critic_loss", loss)
-
-    def _update_learning_rate(self, optimizers) -> None:
-        super()._update_learning_rate(optimizers)
-        if self.actor_learning_rate_scale != 1.0:
-            for group in self.actor.optimizer.param_groups:
-                group["lr"] *= self.actor_learning_rate_scale
-
-    def _update_actor_average(self, gradient_steps: int) -> None:
-        if self.actor_average_tau <= 0:
-            return
-        current = self.actor.state_dict()
-        if self._actor_average is None:
-            self._actor_average = {k: v.detach().clone() for k, v in current.items()}
-            return
-        rate = 1.0 - (1.0 - self.actor_average_tau) ** gradient_steps
-        with torch.no_grad():
-            for key, value in current.items():
-                if value.dtype.is_floating_point:
-                    self._actor_average[key].lerp_(value, rate)
-                else:
-                    self._actor_average[key].copy_(value)
-
-    @contextmanager
-    def averaged_actor(self):
-        """Within the block the actor holds its averaged weights (unchanged without an average)."""
-        if self._actor_average is None:
-            yield self
-            return
-        current = {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
-        self.actor.load_state_dict(self._actor_average)
-        try:
-            yield self
-        finally:
-            self.actor.load_state_dict(current)
-
-    def _train_steps(self, gradient_steps: int, batch_size: int) -> None:
-        buffer = self.replay_buffer
-        n_demo = buffer.demo_batch_size(batch_size) if isinstance(buffer, DemoReplayBuffer) else 0
-        if self.bc_weight <= 0 or n_demo == 0:
-            return super().train(gradient_steps, batch_size)
-        self.policy.set_training_mode(True)
-        optimizers = [self.actor.optimizer, self.critic.optimizer]
-        if self.ent_coef_optimizer is not None:
-            optimizers.append(self.ent_coef_optimizer)
-        self._update_learning_rate(optimizers)
-        stats = {k: [] for k in ("critic_loss", "actor_loss", "bc_loss", "bc_share", "ent_coef")}
-        for step in range(gradient_steps):
-            data = buffer.sample(batch_size, env=self._vec_normalize_env)
-            # The batch is online first, demonstrations last (DemoReplayBuffer.sample).
-            demo = slice(batch_size - n_demo, batch_size)
-            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
-            log_prob = log_prob.reshape(-1, 1)
-            if self.ent_coef_optimizer is not None:
-                ent_coef = torch.exp(self.log_ent_coef.detach())
-                ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                self.ent_coef_optimizer.zero_grad()
-                ent_loss.backward()
-                self.ent_coef_optimizer.step()
-            else:
-                ent_coef = self.ent_coef_tensor
-            critic_loss = _critic_step(self, data, ent_coef)
-
-            q_pi = torch.cat(self.critic(data.observations, actions_pi), dim=1).min(dim=1, keepdim=True)[0]
-            actor_loss = (ent_coef * log_prob - q_pi).mean()
-            demo_obs = {k: v[demo] for k, v in data.observations.items()}
-            mean, _, _ = self.actor.get_action_dist_params(demo_obs)
-            deterministic = torch.tanh(mean)
-            expert = data.actions[demo]
-            with torch.no_grad():
-                q_expert = torch.cat(self.critic(demo_obs, expert), dim=1).min(dim=1)[0]
-                q_actor = torch.cat(self.critic(demo_obs, deterministic), dim=1).min(dim=1)[0]
-                better = (q_expert > q_actor).float()  # logged as bc_share under either filter
-                counted = better if self.bc_filter == "q" else torch.ones_like(better)
-            bc_loss = (counted * ((deterministic - expert) ** 2).sum(dim=1)).mean()
-            # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
-            # same whatever the reward's scale.
-            loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
-            self.actor.optimizer.zero_grad()
-            loss.backward()
-            self.actor.optimizer.step()
-            if step % self.target_update_interval == 0:
-                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
-            for key, value in (("critic_loss", critic_loss), ("actor_loss", actor_loss), ("bc_loss", bc_loss),
-                               ("bc_share", better.mean()), ("ent_coef", ent_coef)):
-                stats[key].append(float(value.item()))
-        self._n_updates += gradient_steps
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        for key, values in stats.items():
-            self.logger.record(f"train/{key}", float(np.mean(values)))

@@ -1,6 +1,6 @@
 """Datasets from trajectory files, for behavioural cloning and force prediction.
 
-    from cathsim_dmc.rl.data import TrajectoryDataset, load_arrays
+    from cathsim_dmc.supervised.data import TrajectoryDataset, load_arrays
     data = TrajectoryDataset(["run/trajectories.npz"], inputs=("obs_pixels",), targets=("action",))
     image, action = data[0]          # float32 tensors: image in [0, 1], (1, 80, 80)
     arrays = load_arrays(["outputs/collect/bca-type1/<run>"], ("obs_pixels", "action"), before_action=True)
@@ -25,7 +25,7 @@ import numpy as np
 from cathsim_dmc.run_files import is_temporary
 from cathsim_dmc.trajectory import SCHEMA_VERSION
 
-MANIFEST = "manifest.json"  # a cathsim-collect dataset's description (rl/collect.py)
+MANIFEST = "manifest.json"  # a cathsim-collect dataset's description (supervised/collect.py)
 
 SHARD_GLOB = "shard_*.npz"
 

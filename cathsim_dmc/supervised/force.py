@@ -98,7 +98,7 @@ def initial_network(image_shape, z_dim: int, cfg: ForceConfig) -> ForceNetwork:
     torch.manual_seed(cfg.seed)
     net = ForceNetwork(image_shape, z_dim)
     if cfg.init_from:
-        from cathsim_dmc.rl.bc import BC_CHECKPOINT
+        from cathsim_dmc.supervised.bc import BC_CHECKPOINT
 
         path = Path(cfg.init_from)
         path = path / BC_CHECKPOINT if path.is_dir() else path
@@ -119,7 +119,7 @@ def train_force(images, force, rows, cfg: ForceConfig, z=None, net: ForceNetwork
 
     Returns (net, info) with the number of updates, seconds and the validation MSE.
     """
-    from cathsim_dmc.rl.data import split_by_episode
+    from cathsim_dmc.supervised.data import split_by_episode
 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -164,7 +164,7 @@ def score(prediction, target) -> dict:
 
 def train_force_sizes(images, force, episodes, cfg: ForceConfig, z=None, out_dir=None, progress=None) -> dict:
     """One network per size in cfg.sizes, all scored on the same held-out episodes."""
-    from cathsim_dmc.rl.data import split_by_episode
+    from cathsim_dmc.supervised.data import split_by_episode
 
     force = np.asarray(force, dtype=np.float32)
     z = np.asarray(z, dtype=np.float32) if z is not None and cfg.z_coef > 0 else None

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from cathsim_dmc.rl.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
+from cathsim_dmc.supervised.data import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 from cathsim_dmc.run_files import remove_temporaries, write_atomic
 from cathsim_dmc.trajectory import SCHEMA_VERSION, TrajectoryRecorder, action_rows
 
@@ -118,7 +118,7 @@ def collection_policy(name: str, seed: int):
     """(policy, feature_fn or None, label, image options, env options) for a built-in name or
     a checkpoint; a checkpoint's image and env options are the ones it was trained with."""
     from cathsim_dmc.observables import OBSERVATION_PRESETS
-    from cathsim_dmc.policies import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents import CheckpointPolicy, make_policy
 
     policy = make_policy(name, seed=seed)
     if not isinstance(policy, CheckpointPolicy):

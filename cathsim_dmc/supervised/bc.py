@@ -120,7 +120,7 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
     `images` (N, C, H, W) uint8, `actions` (N, 2) float32, `episodes` (N,) ids, `z` (N, F).
     `progress(epoch, train_terms, val_terms)` is called after each epoch.
     """
-    from cathsim_dmc.rl.data import split_by_episode
+    from cathsim_dmc.supervised.data import split_by_episode
 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)

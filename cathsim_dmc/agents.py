@@ -1,0 +1,120 @@
+"""Trained agents as policies: a checkpoint of cathsim-train (SAC) or cathsim-bc loaded
+into a function (observation, env) -> action, like the built-in ones of
+`cathsim_dmc.policies`.
+
+    policy = make_policy("outputs/train/bca-type1/internal/<run>")  # or "expert", "random" ...
+
+This module sits above the learning packages (rl/, supervised/) and the policies, which
+import none of it: loading a checkpoint needs SB3 and torch, a scripted policy does not.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from cathsim_dmc.policies import BUILTIN_POLICIES
+from cathsim_dmc.policies import make_policy as make_builtin_policy
+from cathsim_dmc.run_files import (POLICY_FILE, is_temporary, load_normalizer,  # noqa: F401  (public here too)
+                                   normalizer_path)
+
+
+class CheckpointPolicy:
+    """A trained agent loaded from a checkpoint; acts deterministically on observations.
+
+    :param model: an object with SB3's ``predict(observation, deterministic)`` (a SAC model
+        or a loaded cathsim-bc student)
+    :param obs_preset: the observation preset it was trained with
+    :param image_options: the renderer and style it was trained with
+    :param env_options: environment options it was trained with that change what it sees
+        or drives (e.g. the insertion limit)
+    :param normalizer: SB3's VecNormalize with the training's observation statistics, or None
+    """
+
+    def __init__(self, model, obs_preset: str, image_options: dict | None = None, env_options: dict | None = None,
+                 normalizer=None):
+        self.model = model
+        self.obs_preset = obs_preset
+        self.image_options = dict(image_options or {})
+        self.env_options = dict(env_options or {})
+        self.normalizer = normalizer
+
+    def __call__(self, observation, env) -> np.ndarray:
+        # A model with memory (a frame-stacking student) starts afresh with each episode.
+        if hasattr(self.model, "reset") and getattr(getattr(env, "task", None), "step_count", None) == 0:
+            self.model.reset()
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+
+def find_checkpoint(path) -> Path:
+    """The model file for `path`: a checkpoint file itself, or the newest one in a run folder."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
+            if candidate.is_file():
+                return candidate
+        zips = sorted((p for p in path.glob("**/*.zip") if not is_temporary(p)), key=lambda p: p.stat().st_mtime)
+        if zips:
+            return zips[-1]
+        raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")
+    raise FileNotFoundError(f"no checkpoint at {path}")
+
+
+def load_checkpoint_policy(path) -> CheckpointPolicy:
+    """Load a checkpoint written by cathsim-train (or cathsim-bc).
+
+    Its `policy.json` (next to it, or in the run folder above) names the algorithm and
+    the observation preset the agent was trained with.
+    """
+    model_path = find_checkpoint(path)
+    info = None
+    for folder in (model_path.parent, model_path.parent.parent):
+        if (folder / POLICY_FILE).is_file():
+            info = json.loads((folder / POLICY_FILE).read_text())
+            break
+    if info is None:
+        raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+    algo = info.get("algo", "sac")
+    try:
+        if algo == "sac":
+            from stable_baselines3 import SAC
+
+            model = SAC.load(model_path, device="cpu")
+        elif algo == "bc":
+            from cathsim_dmc.supervised.bc import load_bc_policy
+
+            model = load_bc_policy(model_path)
+        else:
+            raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
+    except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
+        raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
+    normalizer = None
+    if info.get("normalize_observations"):
+        stats = normalizer_path(model_path)
+        if not stats.is_file():
+            raise FileNotFoundError(f"{model_path} was trained with normalised observations but {stats.name} "
+                                    f"is missing beside it")
+        try:
+            normalizer = load_normalizer(stats)
+        except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
+            raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"), info.get("env_options"), normalizer)
+
+
+def make_policy(name: str, seed: int = 0):
+    """A built-in policy by name (`cathsim_dmc.policies.BUILTIN_POLICIES`), or a trained
+    agent by the path of its checkpoint or run folder."""
+    if name in BUILTIN_POLICIES:
+        return make_builtin_policy(name, seed=seed)
+    if Path(name).exists():
+        return load_checkpoint_policy(name)
+    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)} nor a checkpoint path")
