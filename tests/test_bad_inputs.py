@@ -66,8 +66,12 @@ CLI_CASES = [
     ("train", ["trainer.device=tpu"], "cuda", True),
     ("train", ["trainer.eval_episodes=0", "trainer.final_eval_episodes=null"], "trainer.eval_episodes=0", True),
     ("train", ["task.max_steps=0"], "max_steps=0", True),
-    ("train", ["task.insertion_limit_margin_m=-0.01"], "insertion_limit_margin_m", True),
-    ("train", ["reward=aim", "reward.aim_weight=-2"], "aim_weight=-2", True),
+    ("train", ["task.dense=maybe"], "task.dense='maybe'", True),
+    ("train", ["trainer.final_policy=median"], "trainer.final_policy='median'; choose one of ['best', 'last']", True),
+    ("train", ["demos.episodes=-4"], "demos.episodes=-4", True),
+    ("train", ["algo.gamma=1.5"], "algo.gamma=1.5 must lie in [0, 1]", True),
+    ("train", ["experimental.extra_observations=[slack]"], "experimental.extra_observations=['slack']", True),
+    ("train", ["+obs.extra=[wire_slack]"], "experimental.extra_observations", True),
     ("train", ["algo.actor_average_tau=2"], "actor_average_tau", True),
     ("train", ["demos.episodes=1", "demos.share=1.5"], "demo_share", False),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
@@ -82,6 +86,8 @@ CLI_CASES = [
     ("collect", ["out={tmp}/data"], "manifest.json", True),  # {tmp}/data/manifest.json is corrupt
     # any tool: what Hydra itself refuses (it would print several lines and exit 1)
     ("train", ["trainer.totl_timesteps=5"], "trainer.totl_timesteps", True),
+    ("train", ["+task.target_mm=5"], "unknown option task.target_mm", True),  # `+` adds past the schema
+    ("eval", ["task.delta=1"], "task.delta", True),  # the task group is typed for every tool
     ("eval", ["seed=[1"], "seed=[1", True),
     ("bench", ["hydra/launcher=nope"], "nope", True),
     ("bench", ["physics_settings=[accurate,quick]"], "quick", True),
