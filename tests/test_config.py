@@ -199,3 +199,24 @@ def test_resuming_an_old_run_that_used_a_removed_option_fails_in_one_line_before
     line = _one_line(_train([f"resume={run}", f"hydra.run.dir={tmp_path / 'log'}"], tmp_path))
     assert "trainer.confirm_episodes=20" in line
     assert sorted(p.name for p in run.iterdir()) == ["config.yaml"]
+
+
+def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(tmp_path):
+    tiny = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
+            "algo.buffer_size=2000", "trainer.checkpoint_every=20", "trainer.eval_every=0", "trainer.eval_episodes=1",
+            "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
+    run = tmp_path / "run"
+    first = _train([*tiny, "trainer.total_timesteps=20", f"hydra.run.dir={run}"], tmp_path)
+    assert first.returncode == 0, first.stderr[-2000:]
+    # Rewrite its config.yaml as the version before the schema wrote it.
+    saved = OmegaConf.to_container(OmegaConf.load(run / "config.yaml"))
+    old = OmegaConf.to_container(OmegaConf.create(OLD_RUN_CONFIG))
+    for section in ("task", "algo", "demos", "trainer"):
+        old[section] = {**saved[section], **{k: v for k, v in old[section].items() if k not in saved[section]}}
+    old["trainer"]["normalize_observations"] = False
+    (run / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(old)))
+    again = _train([f"resume={run}", "trainer.total_timesteps=30", f"hydra.run.dir={tmp_path}/resume"], tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    warnings = [line for line in (again.stdout + again.stderr).splitlines() if "dropped options" in line]
+    assert len(warnings) == 1 and "demos.bc_filter" in warnings[0] and "trainer.confirm_episodes" in warnings[0]
+    assert (run / "checkpoints" / "step_30.zip").is_file() or (run / "checkpoints" / "last.zip").is_file()
