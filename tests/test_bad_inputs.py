@@ -73,7 +73,7 @@ CLI_CASES = [
     ("train", ["experimental.extra_observations=[slack]"], "experimental.extra_observations=['slack']", True),
     ("train", ["+obs.extra=[wire_slack]"], "experimental.extra_observations", True),
     ("train", ["algo.actor_average_tau=2"], "actor_average_tau", True),
-    ("train", ["demos.episodes=1", "demos.share=1.5"], "demo_share", False),
+    ("train", ["demos.episodes=1", "demos.share=1.5"], "demos.share=1.5 must lie in [0, 1]", True),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
     ("train", ["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"], "algo.buffer_size",
      False),
