@@ -29,8 +29,7 @@ def _write(path, content):
 # (tool, arguments, text the one line must contain, whether it fails before any work).
 # `{tmp}` is the test's folder, `{run}` a real training run whose agent sees obs=internal.
 # A few failures need the environment first (the replay-buffer memory estimate reads the
-# observation space; the demonstration buffer checks its share when it is built): those
-# are marked False and only need to be one line.
+# observation space): those are marked False and only need to be one line.
 CLI_CASES = [
     # cathsim-eval
     ("eval", ["task=xyz"], "bca", True),
