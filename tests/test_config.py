@@ -135,6 +135,19 @@ def test_the_extra_observation_names_are_the_tasks_own():
     assert config.EXTRA_OBSERVATIONS == tuple(navigate.EXTRA_OBSERVATIONS)
 
 
+def test_the_task_defaults_are_the_python_apis():
+    # tasks.load keeps its own keyword defaults (the API needs no Hydra); the two must agree.
+    import inspect
+
+    from cathsim_dmc.tasks import Navigate
+
+    api = {name: p.default for name, p in inspect.signature(Navigate.__init__).parameters.items()}
+    schema = _schema_defaults(config.TaskConfig)
+    shared = [name for name in schema if name in api and name != "target"]
+    assert "delta_m" in shared and "physics" in shared
+    assert {name: schema[name] for name in shared} == {name: api[name] for name in shared}
+
+
 def test_every_ranged_option_has_a_default_inside_its_range():
     for name, schema in config.TRAIN_SECTIONS.items():
         config.check_section(name, schema, _schema_defaults(schema))
