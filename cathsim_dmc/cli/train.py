@@ -1,9 +1,11 @@
-"""cathsim-train: SAC with the ENN (or a single-modality baseline) on a navigation task.
+"""cathsim-train: SAC (with the scripted expert's demonstrations by default) on a navigation task.
 
-    cathsim-train task=bca aorta=type2                      # obs=enn algo=sac by default
-    cathsim-train obs=internal trainer.total_timesteps=100000 seed=1
+    cathsim-train task=bca aorta=type2                      # the recipe: conf/train.yaml
+    cathsim-train obs=enn trainer.total_timesteps=100000 seed=1
     cathsim-train -m seed=0,1,2,3,4                         # seed sweep
     cathsim-train resume=outputs/train/bca-type1/enn/<run>  # continue from the last checkpoint
+
+Options, their defaults and ranges: cathsim_dmc/config.py (checked before any work).
 
 The run folder gets: config.yaml (resolved), policy.json, tensorboard/, checkpoints/
 (step_<n>.zip, last.zip), final_model.zip and eval/ (metrics.md, metrics.json, path.png,
