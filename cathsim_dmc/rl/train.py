@@ -156,7 +156,7 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     with_demos = {}
     if demos:
         with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos.get("bc_weight", 0.0)),
-                          bc_filter="none",  # the cloning term counts on every demonstration state
+                          bc_filter=str(demos.get("bc_filter", "none")),  # conf/ no longer sets it: unfiltered
                           warm_start_steps=demos.get("warm_start_steps") or 0,
                           replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
                                                     demo_capacity=int(demos["capacity"])))
