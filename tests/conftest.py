@@ -5,6 +5,12 @@ import pytest
 # Select the headless GL backend before any test module imports dm_control.
 import cathsim_dmc  # noqa: F401,E402
 
+# Composing conf/ needs the config schemas in Hydra's ConfigStore, as the tools register them
+# before they compose (cathsim_dmc/cli/_common.py); tests compose conf/ directly too.
+from cathsim_dmc.config import register_schemas  # noqa: E402
+
+register_schemas()
+
 # Keep torch and BLAS from oversubscribing the two cores while tests run in one process.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -29,8 +29,7 @@ def _write(path, content):
 # (tool, arguments, text the one line must contain, whether it fails before any work).
 # `{tmp}` is the test's folder, `{run}` a real training run whose agent sees obs=internal.
 # A few failures need the environment first (the replay-buffer memory estimate reads the
-# observation space; the demonstration buffer checks its share when it is built): those
-# are marked False and only need to be one line.
+# observation space): those are marked False and only need to be one line.
 CLI_CASES = [
     # cathsim-eval
     ("eval", ["task=xyz"], "bca", True),
@@ -66,10 +65,14 @@ CLI_CASES = [
     ("train", ["trainer.device=tpu"], "cuda", True),
     ("train", ["trainer.eval_episodes=0", "trainer.final_eval_episodes=null"], "trainer.eval_episodes=0", True),
     ("train", ["task.max_steps=0"], "max_steps=0", True),
-    ("train", ["task.insertion_limit_margin_m=-0.01"], "insertion_limit_margin_m", True),
-    ("train", ["reward=aim", "reward.aim_weight=-2"], "aim_weight=-2", True),
+    ("train", ["task.dense=maybe"], "task.dense='maybe'", True),
+    ("train", ["trainer.final_policy=median"], "trainer.final_policy='median'; choose one of ['best', 'last']", True),
+    ("train", ["demos.episodes=-4"], "demos.episodes=-4", True),
+    ("train", ["algo.gamma=1.5"], "algo.gamma=1.5 must lie in [0, 1]", True),
+    ("train", ["experimental.extra_observations=[slack]"], "experimental.extra_observations=['slack']", True),
+    ("train", ["+obs.extra=[wire_slack]"], "experimental.extra_observations", True),
     ("train", ["algo.actor_average_tau=2"], "actor_average_tau", True),
-    ("train", ["demos.episodes=1", "demos.share=1.5"], "demo_share", False),
+    ("train", ["demos.episodes=1", "demos.share=1.5"], "demos.share=1.5 must lie in [0, 1]", True),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
     ("train", ["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"], "algo.buffer_size",
      False),
@@ -82,6 +85,8 @@ CLI_CASES = [
     ("collect", ["out={tmp}/data"], "manifest.json", True),  # {tmp}/data/manifest.json is corrupt
     # any tool: what Hydra itself refuses (it would print several lines and exit 1)
     ("train", ["trainer.totl_timesteps=5"], "trainer.totl_timesteps", True),
+    ("train", ["+task.target_mm=5"], "unknown option task.target_mm", True),  # `+` adds past the schema
+    ("eval", ["task.delta=1"], "task.delta", True),  # the task group is typed for every tool
     ("eval", ["seed=[1"], "seed=[1", True),
     ("bench", ["hydra/launcher=nope"], "nope", True),
     ("bench", ["physics_settings=[accurate,quick]"], "quick", True),

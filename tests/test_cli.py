@@ -98,15 +98,17 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     from cathsim_dmc.cli._common import env_kwargs
     from cathsim_dmc.agents import CheckpointPolicy
 
-    train = _compose("train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7", "+obs.extra=[wire_slack]",
-                               "task.insertion_limit_margin_m=0.02"])
+    train = _compose("train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7",
+                               "experimental.extra_observations=[wire_slack]"])
     scored = env_kwargs(train)
     assert scored == {"task": "bca", "aorta": "type1", "obs": "enn", "delta_m": 0.004, "success_reward": 10.0,
-                      "dense": True, "max_steps": 7, "insertion_limit_margin_m": 0.02, "physics": "fast",
+                      "dense": True, "max_steps": 7, "physics": "fast",
                       "renderer": "raster", "style": "fluoro", "extra_observations": ("wire_slack",)}
     # Only training uses the shaping reward: evaluation scores the paper's task.
-    assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0,
-                                                        "aim_weight": 0.0}
+    assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0}
+    # The obs group is untyped: its old `extra` key says where it went instead of being ignored.
+    with pytest.raises(ValueError, match="experimental.extra_observations"):
+        env_kwargs(_compose("eval", ["+obs.extra=[wire_slack]"]))
     # A checkpoint brings its own preset and options, whatever the tool's config says.
     policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"insertion_limit_margin_m": 0.0})
     assert env_kwargs(_compose("eval", ["obs=enn"]), policy=policy) == {

@@ -125,7 +125,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
     args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
             "algo.buffer_size=2000", "trainer.total_timesteps=40", "trainer.checkpoint_every=20",
             "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
-            "trainer.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
+            "experimental.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
             "demos.critic_warmup_steps=5", f"hydra.run.dir={run}"]
     result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=tmp_path,
                             capture_output=True, text=True, timeout=900)

@@ -70,8 +70,10 @@ def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
 
 def check_composes(config_name: str, argv: Sequence[str]) -> None:
     """Compose the tool's config with the command line's overrides, as Hydra is about to,
-    and exit with status 2 and one line if that fails: an unknown key, a malformed
-    override, a missing config option. Hydra itself would print several lines and exit 1.
+    and exit with status 2 and one line if that fails: an unknown key, a value of the
+    wrong type or (cathsim-train) out of range (the schemas of cathsim_dmc.config), a
+    malformed override, a missing config option. Hydra itself would print several lines
+    and exit 1.
 
     A sweep (-m) or a Hydra flag (--cfg, --help, ...) is left to Hydra.
     """
@@ -81,20 +83,42 @@ def check_composes(config_name: str, argv: Sequence[str]) -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    from cathsim_dmc.config import check_known_keys, register_schemas, validate
     from cathsim_dmc.paths import conf_root
 
+    register_schemas()
     try:
         with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3", job_name=config_name):
-            compose(config_name, overrides=list(argv))
+            cfg = compose(config_name, overrides=list(argv))
+        check_known_keys(cfg, train=config_name == "train")
+        if config_name == "train":  # its ranges too, before Hydra makes the run folder
+            validate(cfg)
     except (HydraException, OmegaConfBaseException) as error:
-        # Hydra's messages span lines (the problem, a hint, the key again, a link): keep
-        # the problem and the hint.
-        lines = [line.strip().rstrip(".:") for line in str(error).splitlines()]
-        keep = [line for line in lines if line and not line.startswith(("full_key", "object_type", "See https",
-                                                                          "Set the environment"))]
-        message = "; ".join(keep[:4]) if keep else type(error).__name__
-        override = getattr(error, "override", None)  # a malformed key=value names itself
-        fail(f"cannot parse {override!r}: {message}" if override else message)
+        fail(composition_error(error))
+    except ValueError as error:
+        fail(str(error))
+
+
+def composition_error(error: Exception) -> str:
+    """One line for a failed composition. A value the schema refuses names its key and
+    value; otherwise Hydra's problem and hint are kept (its message spans lines: the
+    problem, a hint, the key again, a link)."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    cause = error
+    while cause is not None and not (isinstance(cause, OmegaConfBaseException) and getattr(cause, "full_key", None)):
+        cause = cause.__cause__
+    if cause is not None and "not in" in str(cause).splitlines()[0]:  # an unknown key
+        return f"unknown option {cause.full_key}: {str(cause).splitlines()[0]}"
+    if cause is not None and getattr(cause, "value", None) is not None:  # a value of the wrong type
+        problem = str(cause).splitlines()[0].rstrip(".")
+        return f"{cause.full_key}={cause.value!r}: {problem}"
+    lines = [line.strip().rstrip(".:") for line in str(error).splitlines()]
+    keep = [line for line in lines if line and not line.startswith(("full_key", "object_type", "See https",
+                                                                      "Set the environment"))]
+    message = "; ".join(keep[:4]) if keep else type(error).__name__
+    override = getattr(error, "override", None)  # a malformed key=value names itself
+    return f"cannot parse {override!r}: {message}" if override else message
 
 
 def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
@@ -102,8 +126,10 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
     """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
     import hydra
 
+    from cathsim_dmc.config import register_schemas
     from cathsim_dmc.paths import conf_root
 
+    register_schemas()  # conf/ composes on them
     if "aorta" in argv_choices:
         sys.argv[1:] = expand_aorta_folder(sys.argv[1:], list(argv_choices["aorta"]()))
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)
@@ -147,9 +173,9 @@ def pick(options: Mapping, keys: Sequence[str]) -> dict:
 def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     """`CathSimEnv(**...)` / `tasks.load(**...)` arguments from a tool's Hydra config.
 
-    Reads the `task` group (target, success radius and reward, time limit, insertion
-    limit, physics settings), `aorta` (name, generator parameters), `obs` (preset, renderer, style,
-    LAO angle, extra observations) and, with `training`, the training reward (`reward` group): evaluation
+    Reads the `task` group (target, success radius and reward, time limit, physics
+    settings, catheter), `aorta` (name, generator parameters), `obs` (preset, renderer, style,
+    LAO angle), `experimental.extra_observations` and, with `training`, the training reward (`reward` group): evaluation
     always scores the paper's task. With `policy` a CheckpointPolicy, its observation
     preset and the options it was trained with win. The task's values are checked here,
     so that a bad one fails before any work (`tasks.check_options`).
@@ -162,8 +188,6 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     task = cfg.task
     kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,
                   dense=task.dense, max_steps=task.max_steps)
-    if task.get("insertion_limit_margin_m") is not None:
-        kwargs["insertion_limit_margin_m"] = task.insertion_limit_margin_m
     if task.get("physics") is not None:
         kwargs["physics"] = task.physics
     if task.get("catheter") is not None:
@@ -173,15 +197,17 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
         kwargs["aorta_params"] = OmegaConf.to_container(params, resolve=True)
     obs = cfg.get("obs")
     if obs is not None:
+        if "extra" in obs:  # an untyped group: say where the option went rather than ignore it
+            raise ValueError("obs.extra is now experimental.extra_observations (cathsim-train)")
         kwargs["obs"] = obs.name
         kwargs.update({key: obs[key] for key in IMAGE_OPTIONS if obs.get(key) is not None})
         if not kwargs.get("lao_deg"):  # the AP view: recorded as before the option existed
             kwargs.pop("lao_deg", None)
-        if obs.get("extra"):
-            kwargs["extra_observations"] = tuple(obs.extra)
+    experimental = cfg.get("experimental")
+    if experimental is not None and experimental.get("extra_observations"):
+        kwargs["extra_observations"] = tuple(experimental.extra_observations)
     if training and cfg.get("reward") is not None:
-        kwargs.update(reward=cfg.reward.kind, progress_weight=cfg.reward.progress_weight,
-                      aim_weight=cfg.reward.get("aim_weight") or 0.0)
+        kwargs.update(reward=cfg.reward.kind, progress_weight=cfg.reward.progress_weight)
     if isinstance(policy, CheckpointPolicy):  # a trained agent sees and drives what it was trained with
         kwargs.update(obs=policy.obs_preset, **policy.image_options, **policy.env_options)
     tasks.check_options(**{k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs")})

@@ -1,9 +1,11 @@
-"""cathsim-train: SAC with the ENN (or a single-modality baseline) on a navigation task.
+"""cathsim-train: SAC (with the scripted expert's demonstrations by default) on a navigation task.
 
-    cathsim-train task=bca aorta=type2                      # obs=enn algo=sac by default
-    cathsim-train obs=internal trainer.total_timesteps=100000 seed=1
+    cathsim-train task=bca aorta=type2                      # the recipe: conf/train.yaml
+    cathsim-train obs=enn trainer.total_timesteps=100000 seed=1
     cathsim-train -m seed=0,1,2,3,4                         # seed sweep
     cathsim-train resume=outputs/train/bca-type1/enn/<run>  # continue from the last checkpoint
+
+Options, their defaults and ranges: cathsim_dmc/config.py (checked before any work).
 
 The run folder gets: config.yaml (resolved), policy.json, tensorboard/, checkpoints/
 (step_<n>.zip, last.zip), final_model.zip and eval/ (metrics.md, metrics.json, path.png,
@@ -22,13 +24,13 @@ def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
+    from cathsim_dmc.config import upgrade_saved_config, validate
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
     from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, best_record
-    from cathsim_dmc.rl.train import check_training, make_vec_env, train
+    from cathsim_dmc.rl.train import make_vec_env, train
 
     resume = cfg.get("resume")
     if resume:
@@ -36,21 +38,23 @@ def run(cfg) -> dict:
         saved = run_dir / "config.yaml"
         if not saved.is_file():
             raise FileNotFoundError(f"resume={resume!r} is not a cathsim-train run folder (no config.yaml)")
-        # The run continues with its own settings; only the step budget may be raised.
-        original = OmegaConf.load(saved)
+        # The run continues with its own settings (in today's schema); only the step budget may be raised.
+        original = upgrade_saved_config(OmegaConf.load(saved))
         if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
             original.trainer.total_timesteps = cfg.trainer.total_timesteps
         cfg = original
 
     # Every setting is checked before the run folder, an environment or a model exists.
-    seed = check_number("seed", cfg.seed, 0, whole=True)
+    validate(cfg)
+    seed = cfg.seed
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
-    trainer = OmegaConf.to_container(cfg.trainer, resolve=True)
-    check_training(algo, trainer)
+    # rl.train reads the experimental switch with the trainer's options
+    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True),
+                   normalize_observations=cfg.experimental.normalize_observations)
     train_kwargs, eval_kwargs = env_kwargs(cfg, training=True), env_kwargs(cfg)
     agent_options = pick(eval_kwargs, AGENT_OPTIONS)
     image_options = pick(eval_kwargs, IMAGE_OPTIONS)
-    demos = OmegaConf.to_container(cfg.demos, resolve=True) if cfg.get("demos") is not None else None
+    demos = OmegaConf.to_container(cfg.demos, resolve=True)
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
     if not resume:
         run_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -69,7 +73,7 @@ def run(cfg) -> dict:
              result.steps / max(result.seconds, 1e-9))
 
     best = best_record(run_dir)
-    if cfg.trainer.get("final_policy", "last") == "best" and best is not None:
+    if cfg.trainer.final_policy == "best" and best is not None:
         # Loaded as cathsim-eval loads it: the model, its normaliser and its policy.json.
         policy = load_checkpoint_policy(run_dir / CHECKPOINT_DIR / BEST_MODEL)
         log.info("evaluating best.zip (step %d: %.0f%% success in the periodic evaluation)", best["step"],
@@ -82,7 +86,7 @@ def run(cfg) -> dict:
     eval_env = CathSimEnv(**eval_kwargs)
     try:
         report = evaluate_policy(eval_env, policy, f"sac-{obs}",
-                                 cfg.trainer.get("final_eval_episodes") or cfg.trainer.eval_episodes,
+                                 cfg.trainer.final_eval_episodes or cfg.trainer.eval_episodes,
                                  seed=10_000 + seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": seed})
     finally:

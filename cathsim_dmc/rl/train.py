@@ -98,36 +98,12 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
 
 def check_training(algo: dict, trainer: dict) -> None:
     """ValueError naming the setting for an `algo` or `trainer` value training cannot use;
-    `train` calls it first, and cathsim-train before it builds an environment."""
-    from cathsim_dmc.checks import check_number
+    `train` calls it first, and cathsim-train before it builds an environment. The ranges
+    are the schema's (cathsim_dmc.config); keys the dicts lack are not checked."""
+    from cathsim_dmc.config import AlgoConfig, TrainerConfig, check_section
 
-    check_number("algo.learning_rate", algo["learning_rate"], 0.0, inclusive=False)
-    check_number("algo.batch_size", algo["batch_size"], 1, whole=True)
-    check_number("algo.buffer_size", algo["buffer_size"], 1, whole=True)
-    check_number("algo.learning_starts", algo["learning_starts"], 0, whole=True)
-    check_number("algo.gamma", algo["gamma"], 0.0)
-    if not algo["gamma"] <= 1:
-        raise ValueError(f"algo.gamma={algo['gamma']!r} must lie in [0, 1]")
-    scale = check_number("algo.actor_learning_rate_scale", algo.get("actor_learning_rate_scale", 1.0), 0.0,
-                         inclusive=False)
-    if not scale <= 1:
-        raise ValueError(f"algo.actor_learning_rate_scale={scale!r} must lie in (0, 1]")
-    tau = check_number("algo.actor_average_tau", algo.get("actor_average_tau") or 0.0, 0.0)
-    if not tau <= 1:
-        raise ValueError(f"algo.actor_average_tau={tau!r} must lie in [0, 1] (0: no average)")
-    check_number("trainer.total_timesteps", trainer["total_timesteps"], 1, whole=True)
-    check_number("trainer.n_envs", trainer["n_envs"], 1, whole=True)
-    check_number("trainer.checkpoint_every", trainer["checkpoint_every"], 0, whole=True)
-    check_number("trainer.eval_every", trainer.get("eval_every", 0), 0, whole=True)
-    # eval_episodes serves the periodic evaluations and, without final_eval_episodes, the
-    # final report: checked now, not after the training it would end.
-    check_number("trainer.eval_episodes", trainer["eval_episodes"], 1, whole=True)
-    check_number("trainer.confirm_episodes", trainer.get("confirm_episodes") or 0, 0, whole=True)
-    if trainer.get("final_eval_episodes") is not None:
-        check_number("trainer.final_eval_episodes", trainer["final_eval_episodes"], 1, whole=True)
-    device = str(trainer["device"])
-    if device not in ("auto", "cpu", "cuda") and not device.startswith("cuda:"):
-        raise ValueError(f"trainer.device={device!r}; choose one of ['auto', 'cpu', 'cuda']")
+    check_section("algo", AlgoConfig, algo)
+    check_section("trainer", TrainerConfig, trainer)
 
 
 @dataclass
