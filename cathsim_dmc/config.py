@@ -24,7 +24,7 @@ MISSING = "???"  # OmegaConf's marker of a value a config group fills in
 
 DEVICES = ("auto", "cpu", "cuda")  # or cuda:<index>
 FINAL_POLICIES = ("best", "last")
-# tasks.load(extra_observations=...)'s names (tests/test_config.py keeps the two lists equal)
+# tasks.load(extra_observations=...)'s names (tasks/observations.py reads them from here)
 EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 
 
@@ -200,6 +200,14 @@ def check_section(name: str, schema, values: Mapping) -> None:
             number = check_number(key, item, check["minimum"], whole=check["whole"])
             if check["maximum"] is not None and not number <= check["maximum"]:
                 raise ValueError(f"{key}={item!r} must lie in [{check['minimum']:g}, {check['maximum']:g}]")
+
+
+def with_defaults(schema, values: Mapping | None) -> dict:
+    """`values` (a Python caller's dict may hold only the options it sets) over `schema`'s
+    defaults: the trainer reads every option, and each default lives here once."""
+    defaults = {spec.name: spec.default_factory() if spec.default is NO_DEFAULT else spec.default
+                for spec in fields(schema) if spec.default is not NO_DEFAULT or spec.default_factory is not NO_DEFAULT}
+    return {**defaults, **dict(values or {})}
 
 
 def check_known_keys(cfg, train: bool = True) -> None:

@@ -129,12 +129,6 @@ def test_the_schema_module_needs_no_simulator_and_no_cli():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def test_the_extra_observation_names_are_the_tasks_own():
-    from cathsim_dmc.tasks import navigate
-
-    assert config.EXTRA_OBSERVATIONS == tuple(navigate.EXTRA_OBSERVATIONS)
-
-
 def test_the_task_defaults_are_the_python_apis():
     # tasks.load keeps its own keyword defaults (the API needs no Hydra); the two must agree.
     import inspect

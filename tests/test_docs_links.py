@@ -2,18 +2,15 @@
 and the asset cards resolves, the pages are the documented set and stay short, the README
 links every page, and CI runs the README's test command."""
 
-import importlib.util
 import re
 
 import pytest
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def check_links(repo_root):
-    spec = importlib.util.spec_from_file_location("check_links", repo_root / "scripts" / "check_links.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(repo_root / "scripts" / "check_links.py")
 
 
 def test_every_relative_link_resolves(check_links):

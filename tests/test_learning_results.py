@@ -1,18 +1,15 @@
 """scripts/learning_results.py: every variant composes into a cathsim-train config, and the
 report reads finished runs into the table."""
 
-import importlib.util
 import json
 
 import pytest
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def learning_results(repo_root):
-    spec = importlib.util.spec_from_file_location("learning_results", repo_root / "scripts" / "learning_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(repo_root / "scripts" / "learning_results.py")
 
 
 def test_every_variant_composes_with_the_training_config(learning_results):

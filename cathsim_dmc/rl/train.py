@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cathsim_dmc import run_files
+from cathsim_dmc.config import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
                                         checkpoint_step, resume_checkpoint, save_checkpoint, save_model,
                                         write_policy_file)
@@ -74,6 +75,8 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     from cathsim_dmc.rl.features import ENNExtractor, LayerNormSACPolicy
     from cathsim_dmc.rl.sacfd import SACfD
 
+    algo = with_defaults(AlgoConfig, algo)
+    demos = with_defaults(DemosConfig, demos) if demos else None
     policy_kwargs = dict(
         features_extractor_class=ENNExtractor,
         net_arch=list(algo["net_arch"]),
@@ -81,12 +84,12 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     )
     with_demos = {}
     if demos:
-        with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos.get("bc_weight", 0.0)),
+        with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos["bc_weight"]),
                           replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
                                                     demo_capacity=int(demos["capacity"])))
-    policy = LayerNormSACPolicy if algo.get("critic_layer_norm") else "MultiInputPolicy"
+    policy = LayerNormSACPolicy if algo["critic_layer_norm"] else "MultiInputPolicy"
     return SACfD(
-        policy, env, **with_demos, actor_average_tau=float(algo.get("actor_average_tau") or 0.0),
+        policy, env, **with_demos, actor_average_tau=float(algo["actor_average_tau"]),
         learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
         learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
         tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
@@ -100,8 +103,6 @@ def check_training(algo: dict, trainer: dict) -> None:
     """ValueError naming the setting for an `algo` or `trainer` value training cannot use;
     `train` calls it first, and cathsim-train before it builds an environment. The ranges
     are the schema's (cathsim_dmc.config); keys the dicts lack are not checked."""
-    from cathsim_dmc.config import AlgoConfig, TrainerConfig, check_section
-
     check_section("algo", AlgoConfig, algo)
     check_section("trainer", TrainerConfig, trainer)
 
@@ -135,10 +136,13 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     from cathsim_dmc.rl.callbacks import Checkpoints, EpisodeStats, PeriodicEvaluation, Progress
     from cathsim_dmc.rl.sacfd import SACfD
 
+    # Options a Python caller leaves out take the schema's defaults (cathsim_dmc.config).
+    algo, trainer = with_defaults(AlgoConfig, algo), with_defaults(TrainerConfig, trainer)
+    demos = with_defaults(DemosConfig, demos) if demos else None
     check_training(algo, trainer)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if trainer.get("torch_threads"):
+    if trainer["torch_threads"]:
         torch.set_num_threads(int(trainer["torch_threads"]))
     total = int(trainer["total_timesteps"])
     # A run never stores more transitions than it takes, so the buffer is allocated (and
@@ -178,13 +182,13 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     remaining = total - model.num_timesteps
     if remaining > 0:
         built_in = [EpisodeStats(), Checkpoints(trainer["checkpoint_every"], ckpt_dir, trainer["save_replay_buffer"])]
-        if trainer.get("eval_every", 0) > 0 and make_eval_env is not None:
+        if trainer["eval_every"] > 0 and make_eval_env is not None:
             # Selection episodes are seeded apart from the final report's (10_000 + seed), so
             # the report is not scored on the episodes the best checkpoint was chosen on, and
             # apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
             built_in.append(PeriodicEvaluation(make_eval_env(), trainer["eval_every"], trainer["eval_episodes"],
                                                20_000 + seed, run_dir=run_dir))
-        if trainer.get("progress_bar", True):
+        if trainer["progress_bar"]:
             built_in.append(Progress(total))
         model.learn(total_timesteps=remaining, callback=CallbackList([*built_in, *(callbacks or [])]),
                     log_interval=1, tb_log_name="sac", reset_num_timesteps=not resume)
@@ -198,7 +202,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
 
 # -- demonstrations ----------------------------------------------------------------
 def _use_demos(demos: dict | None) -> bool:
-    return bool(demos) and int(demos.get("episodes", 0)) > 0
+    return bool(demos) and int(demos["episodes"]) > 0
 
 
 def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
@@ -217,7 +221,7 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
                                                seed=40_000 + 1000 * seed + 100 * round_index,
                                                max_student_steps=int(demos["takeover_max_student_steps"]))
             add_transitions(model.replay_buffer, transitions)
-            loss = pretrain_actor(model, int(demos.get("pretrain_actor_steps", 0)) // 2)
+            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]) // 2)
             log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
                      "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
                      transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
@@ -233,6 +237,7 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
     from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions
     from cathsim_dmc.rl.sacfd import pretrain_actor, warm_up_critic
 
+    demos = with_defaults(DemosConfig, demos)
     buffer = model.replay_buffer
     if not isinstance(buffer, DemoReplayBuffer):
         raise ValueError("this run was started without demonstrations; resume it without demos.episodes")
@@ -242,7 +247,7 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
         env = make_demo_env()
         try:
             t0 = time.perf_counter()
-            if demos.get("path"):
+            if demos["path"]:
                 transitions = dataset_transitions(demos["path"], env.task, env.observation_space,
                                                   int(demos["episodes"]))
             else:
@@ -258,12 +263,12 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
         log.info("demonstrations: %d expert episodes (%d reached the target), %d transitions, %.0f s",
                  transitions.episodes, transitions.successes, len(transitions), time.perf_counter() - t0)
     if pretrain:
-        if int(demos.get("pretrain_actor_steps", 0)) > 0:
+        if int(demos["pretrain_actor_steps"]) > 0:
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]))
             log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
                      int(demos["pretrain_actor_steps"]), loss)
-        if int(demos.get("takeover_rounds") or 0) > 0:
+        if int(demos["takeover_rounds"]) > 0:
             _takeover_rounds(model, demos, make_demo_env, seed)
-        if int(demos.get("critic_warmup_steps", 0)) > 0:
+        if int(demos["critic_warmup_steps"]) > 0:
             loss = warm_up_critic(model, int(demos["critic_warmup_steps"]))
             log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)
