@@ -10,9 +10,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control.composer.observation import observable
 
+from cathsim_dmc.config import EXTRA_OBSERVATIONS  # noqa: F401  (defined once there; public here too)
 from cathsim_dmc.observables import ObservationSettings, TopView, image_noise
-
-EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 
 
 def check_extra_observations(extra_observations) -> tuple:
