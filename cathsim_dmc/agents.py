@@ -122,8 +122,8 @@ def trained_env_options(model_path, env_options: dict | None) -> dict:
     for name in [name for name in options if name in REMOVED_TASK_ARGUMENTS]:
         value = options.pop(name)
         if value is not None:
-            raise ValueError(f"{model_path} was trained with {name}={value!r}, an option {REMOVED_TASK_ARGUMENTS[name]}; "
-                             f"it cannot be evaluated on the task it was trained for")
+            raise ValueError(f"{model_path} was trained with {name}={value!r}, an option "
+                             f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for")
     return options
 
 
