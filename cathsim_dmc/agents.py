@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cathsim_dmc.config import REMOVED_TASK_ARGUMENTS
 from cathsim_dmc.policies import BUILTIN_POLICIES
 from cathsim_dmc.policies import make_policy as make_builtin_policy
 from cathsim_dmc.run_files import (POLICY_FILE, is_temporary, load_normalizer,  # noqa: F401  (public here too)
@@ -31,7 +32,7 @@ class CheckpointPolicy:
     :param obs_preset: the observation preset it was trained with
     :param image_options: the renderer and style it was trained with
     :param env_options: environment options it was trained with that change what it sees
-        or drives (e.g. the insertion limit)
+        or drives (e.g. extra observations, the physics settings)
     :param normalizer: SB3's VecNormalize with the training's observation statistics, or None
     """
 
@@ -73,7 +74,9 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
     """Load a checkpoint written by cathsim-train (or cathsim-bc).
 
     Its `policy.json` (next to it, or in the run folder above) names the algorithm and
-    the observation preset the agent was trained with.
+    the observation preset the agent was trained with. An agent trained with a task
+    option since removed fails in one line (ValueError): it would be evaluated on a task
+    other than its own.
     """
     model_path = find_checkpoint(path)
     info = None
@@ -83,6 +86,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             break
     if info is None:
         raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+    env_options = trained_env_options(model_path, info.get("env_options"))
     algo = info.get("algo", "sac")
     try:
         if algo == "sac":
@@ -107,7 +111,20 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             normalizer = load_normalizer(stats)
         except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
             raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
-    return CheckpointPolicy(model, info["obs"], info.get("image_options"), info.get("env_options"), normalizer)
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"), env_options, normalizer)
+
+
+def trained_env_options(model_path, env_options: dict | None) -> dict:
+    """A checkpoint's `env_options` as the current task takes them. A removed option left
+    at None (off: what the task now always does) is dropped; one that was on fails in one
+    line, naming it."""
+    options = dict(env_options or {})
+    for name in [name for name in options if name in REMOVED_TASK_ARGUMENTS]:
+        value = options.pop(name)
+        if value is not None:
+            raise ValueError(f"{model_path} was trained with {name}={value!r}, an option "
+                             f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for")
+    return options
 
 
 def make_policy(name: str, seed: int = 0):

@@ -43,16 +43,25 @@ def _count(default, minimum=0):
 
 @dataclass
 class TaskConfig:
-    """`task`: the navigation task every tool runs (conf/task/<target>.yaml). Its ranges are
-    checked by tasks.check_options, which the Python API shares."""
+    """`task`: the navigation task every tool runs (conf/task/<target>.yaml). These are also
+    the defaults of the Python API (`tasks.load`, `Navigate`), which reads them from here;
+    the ranges are checked by tasks.check_options, which both share."""
 
     target: str = MISSING              # bca | lcca
     delta_m: float = 0.004             # success radius (the paper's 4 mm)
     success_reward: float = 10.0
     dense: bool = True                 # the dense reward (false: only the success reward)
-    max_steps: int = 300
+    max_steps: int = 300               # the paper's episode limit
     physics: str = "fast"              # fast (PGS, prism wall) | fast_field | accurate (Newton); docs/model.md#physics
     catheter: Optional[str] = None     # a shaped catheter over the wire (angled_5f); docs/model.md#catheter
+
+
+# Arguments of tasks.load / Navigate that were removed (their measurements showed no gain):
+# name -> the one line a caller, or a checkpoint trained with one, gets instead.
+REMOVED_TASK_ARGUMENTS = {
+    "aim_weight": "removed on 2026-11-27: the aim shaping measured no better than progress_weight",
+    "insertion_limit_margin_m": "removed on 2026-11-27: the carriage travel limit measured no gain",
+}
 
 
 @dataclass

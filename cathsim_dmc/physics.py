@@ -16,6 +16,8 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
+from cathsim_dmc.config import TaskConfig
+
 _WARNINGS_DIVERGENT = (
     mujoco.mjtWarning.mjWARN_BADQACC,
     mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -73,7 +75,7 @@ PHYSICS_SETTINGS = {
 }
 # The PGS settings passed the fidelity gate against `accurate` (2026-11-25), the field wall
 # against `fast` (2026-11-26): experiments/fidelity_gate.py; docs/model.md, "Solver settings".
-DEFAULT_PHYSICS = "fast"
+DEFAULT_PHYSICS = TaskConfig.physics  # "fast", defined once in the task config's schema
 
 
 def physics_settings(physics) -> PhysicsSettings:

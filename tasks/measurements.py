@@ -1,5 +1,5 @@
 """What the navigation task measures of the wire in a physics: the tip, points along the
-wire, the tip on the centerline tree and its aim, the slack, and the wire-wall contacts.
+wire, the tip on the centerline tree, the slack, and the wire-wall contacts.
 
 Measurements a control step reads several times (the tip's place on the centerline
 tree, the contact forces) are computed once per step: the task calls `start_episode`,
@@ -15,7 +15,6 @@ import numpy as np
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
-from cathsim_dmc.tasks.rewards import AIM_LOOKAHEAD_RADII
 
 
 @dataclass
@@ -116,21 +115,6 @@ class WireMeasurements:
     def path_distance_m(self, physics) -> float:
         """Tip to target along the vessel (`CenterlineTree.geodesic_distance_m`), metres."""
         return self._paths.geodesic_from_location(self.locate_tip(physics), self._target_name)
-
-    def aim_error(self, physics) -> tuple[float, float]:
-        """(angle from the tip's bend to the aim in radians, off-axis share of the aim):
-        `CenterlinePath.aim_error` on the target's centerline, looking
-        `AIM_LOOKAHEAD_RADII` lumen radii past the tip."""
-        line = self._paths.lines[self._target_name]
-        tip = self.tip_position_m(physics)
-        base = physics.bind(self._guidewire.tip_base_site)
-        # The step's tree location already holds the arc length when the tip is on the
-        # target's line; only a tip in another branch needs locating on that line.
-        name, s_m, _ = self.locate_tip(physics)
-        if name != self._target_name:
-            s_m = line.locate(tip)[0]
-        return line.aim_error(tip, base.xpos, base.xmat.reshape(3, 3)[:, 2], s_m,
-                              AIM_LOOKAHEAD_RADII * line.radius_at(s_m))
 
     def slack_m(self, physics) -> float:
         """Carriage advance minus tip advance along the vessel since the start, metres.

@@ -9,6 +9,7 @@ import dm_env.specs
 from dm_control import composer
 
 from cathsim_dmc.checks import check_number
+from cathsim_dmc.config import REMOVED_TASK_ARGUMENTS, TaskConfig
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Containment
@@ -21,30 +22,37 @@ from cathsim_dmc.tasks.rewards import SUCCESS_REWARD, NavigationReward
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
-MAX_STEPS = 300  # the paper's episode limit
-SUCCESS_RADIUS_M = 0.004  # the paper's delta
+# The task's defaults are the training config's (cathsim_dmc.config.TaskConfig), defined there once.
+MAX_STEPS = TaskConfig.max_steps  # the paper's episode limit
+SUCCESS_RADIUS_M = TaskConfig.delta_m  # the paper's delta
 
 
-def check_options(delta_m=None, max_steps=None, success_reward=None, insertion_limit_margin_m=None,
-                  progress_weight=None, aim_weight=None, physics=None, catheter=None, **_others) -> None:
+def check_removed_arguments(arguments) -> None:
+    """ValueError in one line for an argument of `arguments` (names) that was removed
+    (`cathsim_dmc.config.REMOVED_TASK_ARGUMENTS`)."""
+    for name in arguments:
+        if name in REMOVED_TASK_ARGUMENTS:
+            raise ValueError(f"{name} was {REMOVED_TASK_ARGUMENTS[name]}; leave it out")
+
+
+def check_options(delta_m=None, max_steps=None, success_reward=None, progress_weight=None, physics=None,
+                  catheter=None, **others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
     call it before building anything. A zero success radius would make MuJoCo fail on a
-    zero-size marker, and `max_steps=0` would end every episode after one step.
+    zero-size marker, and `max_steps=0` would end every episode after one step. A removed
+    argument (`check_removed_arguments`) fails here too; other names are left to `Navigate`.
     """
+    check_removed_arguments(others)
     if delta_m is not None:
         check_number("delta_m", delta_m, 0.0, inclusive=False)
     if max_steps is not None:
         check_number("max_steps", max_steps, 1, whole=True)
     if success_reward is not None:
         check_number("success_reward", success_reward)
-    if insertion_limit_margin_m is not None:  # metres past the target's centerline length
-        check_number("insertion_limit_margin_m", insertion_limit_margin_m, 0.0)
     if progress_weight is not None:
         check_number("progress_weight", progress_weight, 0.0)
-    if aim_weight is not None:
-        check_number("aim_weight", aim_weight, 0.0)
     if physics is not None:  # a name in cs_physics.PHYSICS_SETTINGS ("accurate", "fast")
         cs_physics.physics_settings(physics)
     if catheter is not None:  # a name in CATHETERS ("angled_5f") or a Catheter
@@ -79,10 +87,7 @@ class Navigate(composer.Task):
     terms are in `cathsim_dmc.tasks.rewards`): `reward="geodesic"` measures the distance
     along the vessel instead of the straight line; `progress_weight` adds that weight
     times the step's progress towards the target in units of one full-speed insertion
-    step (potential-style shaping); `aim_weight` adds potential shaping for turning the
-    tip's bend towards where the target's centerline goes next (the privileged expert's
-    aim). `insertion_limit_margin_m` stops the carriage at the centerline length from the
-    entry to the target plus this margin (None: the full stroke).
+    step (potential-style shaping). The defaults are `cathsim_dmc.config.TaskConfig`'s.
 
     Physics: `physics="fast"` (the default: PGS capped at 10 iterations, dense Jacobian,
     noslip off, sleep on; about twice the speed of `accurate` in wall contact) or `"accurate"`
@@ -114,7 +119,7 @@ class Navigate(composer.Task):
         target: str = "bca",
         delta_m: float = SUCCESS_RADIUS_M,
         success_reward: float = SUCCESS_REWARD,
-        dense: bool = True,
+        dense: bool = TaskConfig.dense,
         max_steps: int = MAX_STEPS,
         observations: ObservationSettings = OBSERVATION_PRESETS["internal"],
         control_timestep_s: float = CONTROL_TIMESTEP_S,
@@ -124,17 +129,19 @@ class Navigate(composer.Task):
         blood_drag: bool = False,
         reward: str = "euclidean",
         progress_weight: float = 0.0,
-        aim_weight: float = 0.0,
-        insertion_limit_margin_m: float | None = None,
         extra_observations: tuple = (),
         physics: str = cs_physics.DEFAULT_PHYSICS,
-        catheter: Catheter | str | None = None,
+        catheter: Catheter | str | None = TaskConfig.catheter,
+        **removed,
     ):
+        # `removed`: arguments since removed, refused in one line rather than as unknown.
+        check_removed_arguments(removed)
+        if removed:
+            raise TypeError(f"Navigate() got an unexpected keyword argument {next(iter(removed))!r}")
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
         check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
-                      insertion_limit_margin_m=insertion_limit_margin_m, progress_weight=progress_weight,
-                      aim_weight=aim_weight, physics=physics, catheter=catheter)
+                      progress_weight=progress_weight, physics=physics, catheter=catheter)
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._target_name = target
         self._physics_setting = physics
@@ -145,11 +152,9 @@ class Navigate(composer.Task):
                                 float(start_rotation_jitter_rad))
         self._settings = observations
         self._reward = NavigationReward(kind=reward, dense=bool(dense), success_reward=float(success_reward),
-                                        progress_weight=float(progress_weight), aim_weight=float(aim_weight))
+                                        progress_weight=float(progress_weight))
         self._extra_observations = check_extra_observations(extra_observations)
         self._paths = CenterlineTree.from_asset(aorta.asset)
-        self._insertion_limit_m = (None if insertion_limit_margin_m is None
-                                   else self._paths.lines[target].length_m + float(insertion_limit_margin_m))
         self._measurements = WireMeasurements(aorta, guidewire, robot, self._paths, target)
 
         self._scene = build_scene(aorta, guidewire, robot, aorta.targets[target], self._delta_m,
@@ -164,7 +169,6 @@ class Navigate(composer.Task):
         self._escaped = False
         self._step_force = cs_physics.ControlStepForce()
         self._reward_distance_m = self._previous_reward_distance_m = 0.0
-        self._aim_potential = self._previous_aim_potential = 0.0
 
     # -- structure -------------------------------------------------------------
     @property
@@ -221,11 +225,6 @@ class Navigate(composer.Task):
         return self._paths
 
     @property
-    def insertion_limit_m(self) -> float | None:
-        """The carriage's travel limit in metres (None: the robot's full stroke)."""
-        return self._insertion_limit_m
-
-    @property
     def top_view(self):
         """The `TopView` drawing this task's `pixels` and `guidewire_mask`."""
         return self._top_view
@@ -243,7 +242,6 @@ class Navigate(composer.Task):
         # The wire takes its rest shape in its own initialize_episode hook.
         insertion, rotation = self._start.draw(random_state)
         self._robot.set_pose(physics, insertion, rotation)
-        self._robot.set_insertion_limit(physics, self._insertion_limit_m)
         if self._catheter_drive is not None:
             self._catheter_drive.initialize_episode(physics)
         self._step_count = 0
@@ -264,7 +262,6 @@ class Navigate(composer.Task):
         measurements.forget()
         measurements.set_start(physics, insertion)
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
-        self._aim_potential = self._previous_aim_potential = self.aim_potential(physics)
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])
@@ -285,8 +282,6 @@ class Navigate(composer.Task):
             self._success = self.target_distance_m(physics) <= self._delta_m
             self._previous_reward_distance_m = self._reward_distance_m
             self._reward_distance_m = self.reward_distance_m(physics)
-            self._previous_aim_potential = self._aim_potential
-            self._aim_potential = self.aim_potential(physics)
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -320,13 +315,12 @@ class Navigate(composer.Task):
     def get_reward(self, physics):
         if self._diverged or self._escaped:  # cut short: the step says nothing about the task
             return 0.0
-        return self._reward.reward(self._previous_reward_distance_m, self._reward_distance_m, self._success,
-                                   self._progress_step_m(), self._previous_aim_potential, self._aim_potential)
+        return self.reward_for(self._previous_reward_distance_m, self._reward_distance_m, self._success)
 
     def reward_for(self, previous_distance_m: float, distance_m: float, success: bool) -> float:
         """The reward of a step that took the tip from `previous_distance_m` to `distance_m`
-        (as `reward_distance_m` measures them) and did or did not reach the target,
-        without the aim shaping (`NavigationReward.step_reward`)."""
+        (as `reward_distance_m` measures them) and did or did not reach the target
+        (`NavigationReward.step_reward`)."""
         return self._reward.step_reward(previous_distance_m, distance_m, success, self._progress_step_m())
 
     def _progress_step_m(self) -> float:
@@ -359,10 +353,6 @@ class Navigate(composer.Task):
         """Tip to target along the vessel (`CenterlineTree.geodesic_distance_m`), metres."""
         return self._measurements.path_distance_m(physics)
 
-    def aim_error(self, physics) -> tuple[float, float]:
-        """(angle from the tip's bend to the aim in radians, off-axis share of the aim)."""
-        return self._measurements.aim_error(physics)
-
     def slack_m(self, physics) -> float:
         """Carriage advance minus tip advance along the vessel since the start, metres."""
         return self._measurements.slack_m(physics)
@@ -393,17 +383,6 @@ class Navigate(composer.Task):
                                                       self._target_name)
 
         return self._reward.distance_m(tip, self.target_position_m, along_vessel_m)
-
-    @property
-    def aim_potential_weight(self) -> float:
-        """`aim_weight`: the aim shaping's weight (0: none)."""
-        return self._reward.aim_weight
-
-    def aim_potential(self, physics) -> float:
-        """The aim shaping's potential (`rewards.aim`; 0 with `aim_weight` 0)."""
-        if not self._reward.aim_weight:
-            return 0.0
-        return self._reward.aim_potential(*self.aim_error(physics))
 
     @property
     def diverged(self) -> bool:

@@ -6,15 +6,11 @@ A step's reward (`NavigationReward.reward`) is
 * minus the tip's distance to the target in metres (dense) or 0 (sparse), the distance
   measured by "euclidean" (the paper's straight line) or "geodesic" (along the vessel);
 * plus "progress" shaping: `progress_weight` times the step's progress towards the
-  target, in units of one full-speed insertion step;
-* plus "aim" shaping: the change of a potential that grows as the tip's bend turns
-  towards where the target's centerline goes next (the potential is paid for the step the
-  aim happens, rather than only when the tip later moves).
+  target, in units of one full-speed insertion step.
 
-`Navigate(reward=..., progress_weight=..., aim_weight=...)` picks the distance and the
-shaping weights; the training configs conf/reward/*.yaml name them (`kind`,
-`progress_weight`, `aim_weight`). Success, the time limit and the metrics do not depend
-on any of them.
+`Navigate(reward=..., progress_weight=...)` picks the distance and the shaping weight;
+the training configs conf/reward/*.yaml name them (`kind`, `progress_weight`). Success,
+the time limit and the metrics do not depend on either.
 """
 
 from __future__ import annotations
@@ -24,12 +20,9 @@ from typing import Callable
 
 import numpy as np
 
-SUCCESS_REWARD = 10.0
-# Aim shaping looks this many lumen radii ahead along the target's centerline (as the expert).
-AIM_LOOKAHEAD_RADII = 1.5
-# The aim counts fully once the next stretch is this far off the shaft's axis (the share of
-# the look-ahead across the shaft); straight ahead, the bend's direction does not matter.
-AIM_FULL_OFF_AXIS = 0.5
+from cathsim_dmc.config import TaskConfig
+
+SUCCESS_REWARD = TaskConfig.success_reward  # defined once, in the training config's schema
 
 
 # -- the dense reward's distances, tip to target, in metres --------------------------------
@@ -58,16 +51,9 @@ def progress(previous_distance_m: float, distance_m: float, step_m: float, weigh
     return weight * (previous_distance_m - distance_m) / step_m
 
 
-def aim(angle_rad: float, off_axis: float, weight: float) -> float:
-    """The aim's potential: -weight x (angle from the tip's bend to the aim / pi), faded out
-    where the path runs straight ahead (`off_axis`: the aim's share across the shaft, see
-    `CenterlinePath.aim_error`). The reward pays its change from step to step."""
-    return -weight * abs(angle_rad) / np.pi * min(1.0, off_axis / AIM_FULL_OFF_AXIS)
-
-
-_REWARDS = {"euclidean": euclidean, "geodesic": geodesic, "progress": progress, "aim": aim}
+_REWARDS = {"euclidean": euclidean, "geodesic": geodesic, "progress": progress}
 DISTANCES = ("euclidean", "geodesic")  # what `Navigate(reward=...)` accepts
-SHAPING = ("progress", "aim")
+SHAPING = ("progress",)
 
 
 def get_reward(name: str) -> Callable[..., float]:
@@ -80,13 +66,12 @@ def get_reward(name: str) -> Callable[..., float]:
 @dataclass(frozen=True)
 class NavigationReward:
     """One task's reward: which distance it penalises, whether dense, the success reward
-    and the shaping weights (0: no shaping)."""
+    and the progress shaping's weight (0: no shaping)."""
 
     kind: str = "euclidean"
-    dense: bool = True
+    dense: bool = TaskConfig.dense
     success_reward: float = SUCCESS_REWARD
     progress_weight: float = 0.0
-    aim_weight: float = 0.0
 
     def __post_init__(self):
         if self.kind not in DISTANCES:
@@ -96,24 +81,13 @@ class NavigationReward:
         """The distance this reward penalises, in metres (`along_vessel_m()`: the geodesic part)."""
         return get_reward(self.kind)(tip_position_m, target_position_m, along_vessel_m)
 
-    def aim_potential(self, angle_rad: float, off_axis: float) -> float:
-        return aim(angle_rad, off_axis, self.aim_weight)
-
     def step_reward(self, previous_distance_m: float, distance_m: float, success: bool, step_m: float) -> float:
         """The reward of a step that took the tip from `previous_distance_m` to `distance_m`
-        and did or did not reach the target, without the aim shaping (`step_m`: one
-        full-speed insertion step, the progress shaping's unit)."""
+        and did or did not reach the target (`step_m`: one full-speed insertion step, the
+        progress shaping's unit)."""
         if success:
             return self.success_reward
         reward = -distance_m if self.dense else 0.0
         if self.progress_weight:
             reward += progress(previous_distance_m, distance_m, step_m, self.progress_weight)
-        return reward
-
-    def reward(self, previous_distance_m: float, distance_m: float, success: bool, step_m: float,
-               previous_aim_potential: float, aim_potential: float) -> float:
-        """`step_reward` plus the aim potential's change (none on success: the episode ends there)."""
-        reward = self.step_reward(previous_distance_m, distance_m, success, step_m)
-        if not success:
-            reward += aim_potential - previous_aim_potential
         return reward

@@ -153,6 +153,12 @@ def _load(**kwargs):
     return lambda tmp_path: tasks.load("bca", "type1", **kwargs)
 
 
+def _load_random(**kwargs):
+    from cathsim_dmc import tasks
+
+    return lambda tmp_path: tasks.load("bca", "random", **kwargs)
+
+
 def _gym_env(**kwargs):
     from cathsim_dmc.gym import CathSimEnv
 
@@ -221,7 +227,11 @@ API_CASES = [
     ("tasks.load(delta_m=-1)", _load(delta_m=-1), ValueError, "delta_m=-1"),
     ("tasks.load(max_steps=0)", _load(max_steps=0), ValueError, "max_steps=0"),
     ("tasks.load(success_reward=nan)", _load(success_reward=float("nan")), ValueError, "success_reward=nan"),
-    ("tasks.load(aim_weight=-1)", _load(aim_weight=-1), ValueError, "aim_weight=-1"),
+    ("tasks.load(aim_weight=2)", _load(aim_weight=2.0), ValueError, "aim_weight was removed on 2026-11-27"),
+    ("tasks.load(insertion_limit_margin_m=0)", _load(insertion_limit_margin_m=0.0), ValueError,
+     "insertion_limit_margin_m was removed on 2026-11-27"),
+    ("tasks.load(aorta='random', aim_weight=2)", _load_random(aim_weight=2.0), ValueError,
+     "aim_weight was removed"),
     ("tasks.load(physics='quick')", _load(physics="quick"), ValueError, "choose one of ['accurate', 'fast', 'fast_field']"),
     ("negative Young's modulus", _load(guidewire={"youngs_modulus_pa": -40e9}), ValueError, "youngs_modulus_pa"),
     ("negative tip modulus", _load(guidewire={"tip_youngs_modulus_pa": -1.0}), ValueError, "tip_youngs_modulus_pa"),

@@ -226,6 +226,33 @@ def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
         assert not set(removed) & set(json.loads(archive.read("data")))
 
 
+def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(tmp_path):
+    """A policy.json written before insertion_limit_margin_m was removed: the agent, trained
+    with the limit on, would be scored on another task; left at None (off) it loads."""
+    from cathsim_dmc.agents import make_policy
+
+    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 3})
+    algo, _ = _configs()
+    algo.update(net_arch=[8])
+    model = training.build_sac(env, algo, 0, "cpu", None)
+    env.close()
+    model.save(tmp_path / "final_model.zip")
+
+    def policy_file(env_options):
+        info = {"algo": "sac", "obs": "internal", "image_options": {}, "task": "bca", "aorta": "type1",
+                "env_options": env_options, "normalize_observations": False}
+        (tmp_path / run_files.POLICY_FILE).write_text(json.dumps(info))
+
+    policy_file({"insertion_limit_margin_m": 0.02, "physics": "fast"})
+    with pytest.raises(ValueError) as raised:
+        make_policy(str(tmp_path))
+    message = str(raised.value)
+    assert "trained with insertion_limit_margin_m=0.02" in message and "removed on 2026-11-27" in message
+    assert "\n" not in message
+    policy_file({"insertion_limit_margin_m": None, "physics": "fast"})
+    assert make_policy(str(tmp_path)).env_options == {"physics": "fast"}
+
+
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):
     from cathsim_dmc.supervised.data import expand_paths
     from cathsim_dmc.trajectory import save_npz

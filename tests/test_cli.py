@@ -110,11 +110,11 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     with pytest.raises(ValueError, match="experimental.extra_observations"):
         env_kwargs(_compose("eval", ["+obs.extra=[wire_slack]"]))
     # A checkpoint brings its own preset and options, whatever the tool's config says.
-    policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"insertion_limit_margin_m": 0.0})
+    policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"extra_observations": ["drive_force"]})
     assert env_kwargs(_compose("eval", ["obs=enn"]), policy=policy) == {
         "task": "bca", "aorta": "type1", "obs": "internal", "delta_m": 0.004, "success_reward": 10.0, "dense": True,
         "max_steps": 300, "physics": "fast", "renderer": "raster", "style": "camera",
-        "insertion_limit_margin_m": 0.0}
+        "extra_observations": ["drive_force"]}
     assert env_kwargs(_compose("eval", ["task.physics=accurate"]))["physics"] == "accurate"
     # ...and its solver settings: an agent trained under accurate is scored under accurate.
     trained_accurate = CheckpointPolicy(None, "internal", {}, {"physics": "accurate"})

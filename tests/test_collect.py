@@ -67,14 +67,14 @@ def test_dataset_round_trip_and_resume(tmp_path):
 
 
 def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
-    # As cathsim-eval evaluates it: an agent trained with an insertion limit and an extra
-    # observation drives with both (it cannot act at all without the observation).
+    # As cathsim-eval evaluates it: an agent trained with an extra observation drives with
+    # it (it cannot act at all without it).
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from cathsim_dmc.rl.checkpoints import write_policy_file
     from cathsim_dmc.rl.train import build_sac, make_env_fn
 
-    trained_with = {"insertion_limit_margin_m": 0.01, "extra_observations": ["wire_slack"]}
+    trained_with = {"extra_observations": ["wire_slack"]}
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 3, **trained_with})])
     algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,
                 train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",

@@ -129,8 +129,17 @@ def test_the_schema_module_needs_no_simulator_and_no_cli():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_the_extra_observation_names_are_the_tasks_own():
+    from cathsim_dmc.tasks.observations import check_extra_observations
+
+    assert check_extra_observations(list(config.EXTRA_OBSERVATIONS)) == config.EXTRA_OBSERVATIONS
+    with pytest.raises(ValueError, match="wire_slack"):
+        check_extra_observations(["wire_slackness"])
+
+
 def test_the_task_defaults_are_the_python_apis():
-    # tasks.load keeps its own keyword defaults (the API needs no Hydra); the two must agree.
+    # tasks.load takes its keyword defaults from TaskConfig (which needs no Hydra to read):
+    # a literal default written again on either side would show here.
     import inspect
 
     from cathsim_dmc.tasks import Navigate

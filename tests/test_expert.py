@@ -50,6 +50,23 @@ def test_expert_actions_stay_in_the_action_space(bca_type3):
     assert actions[:, 0].min() < 0 < actions[:, 0].max()
 
 
+def test_aim_error_of_a_bend_towards_and_away_from_a_turning_line():
+    # The expert turns the tip's bend by this error before it inserts.
+    from cathsim_dmc.anatomy.paths import CenterlinePath
+
+    # Up the z axis for 50 mm, then off along +x: a bend; the tip base sits at z = 40 mm.
+    line = CenterlinePath([[0, 0, 0], [0, 0, 0.05], [0.05, 0, 0.05]], 0.005)
+    base, shaft = np.array([0, 0, 0.04]), np.array([0, 0, 1.0])
+    towards, off_axis = line.aim_error(base + [0.002, 0, 0.005], base, shaft, 0.04, 0.02)
+    away, _ = line.aim_error(base + [-0.002, 0, 0.005], base, shaft, 0.04, 0.02)
+    quarter, _ = line.aim_error(base + [0, 0.002, 0.005], base, shaft, 0.04, 0.02)
+    assert towards == pytest.approx(0.0, abs=1e-9) and abs(away) == pytest.approx(np.pi)
+    assert abs(quarter) == pytest.approx(np.pi / 2)
+    assert off_axis == pytest.approx(10 / np.hypot(10, 10))  # aim 10 mm up and 10 mm across
+    # Low on the straight stretch the look-ahead lies straight ahead: nothing to aim.
+    assert line.aim_error(base - [0, 0, 0.03] + [0.002, 0, 0.005], base - [0, 0, 0.03], shaft, 0.01, 0.01)[1] < 1e-9
+
+
 @pytest.fixture(scope="module")
 def environments():
     built = {}

@@ -1,5 +1,5 @@
-"""Training rewards and robot signals: the geodesic distance, progress shaping, the
-insertion limit and the slack signal."""
+"""Training rewards and robot signals: the geodesic distance, progress shaping and the
+slack signal."""
 
 import numpy as np
 import pytest
@@ -107,17 +107,6 @@ def test_bad_reward_options_name_the_choices():
         tasks.load("bca", "type1", extra_observations=("nope",))
 
 
-def test_insertion_limit_stops_the_carriage_at_the_path_length_plus_margin():
-    env = tasks.load("bca", "type1", seed=0, insertion_limit_margin_m=0.0)
-    env.reset()
-    limit = env.task.insertion_limit_m
-    points = load_asset(resolve_asset("type1")).centerlines["bca"].points  # entry to the BCA site
-    assert limit == pytest.approx(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
-    _, infos = _run(env, [[1.0, 0.0]] * 70)  # 70 x 4 mm would reach 280 mm
-    assert max(i.insertion_m for i in infos) <= limit + 1e-3
-    assert infos[-1].insertion_m > limit - 5e-3
-
-
 def test_slack_grows_when_the_tip_stalls_and_the_drive_pushes():
     env = tasks.load("bca", "type1", seed=0, extra_observations=("wire_slack", "drive_force"))
     timestep = env.reset()
@@ -134,53 +123,10 @@ def test_slack_grows_when_the_tip_stalls_and_the_drive_pushes():
     assert timestep.observation["wire_slack"][0] == pytest.approx(env.task.slack_m(env.physics))
 
 
-def test_aim_error_of_a_bend_towards_and_away_from_a_turning_line():
-    from cathsim_dmc.anatomy.paths import CenterlinePath
-
-    # Up the z axis for 50 mm, then off along +x: a bend; the tip base sits at z = 40 mm.
-    line = CenterlinePath([[0, 0, 0], [0, 0, 0.05], [0.05, 0, 0.05]], 0.005)
-    base, shaft = np.array([0, 0, 0.04]), np.array([0, 0, 1.0])
-    towards, off_axis = line.aim_error(base + [0.002, 0, 0.005], base, shaft, 0.04, 0.02)
-    away, _ = line.aim_error(base + [-0.002, 0, 0.005], base, shaft, 0.04, 0.02)
-    quarter, _ = line.aim_error(base + [0, 0.002, 0.005], base, shaft, 0.04, 0.02)
-    assert towards == pytest.approx(0.0, abs=1e-9) and abs(away) == pytest.approx(np.pi)
-    assert abs(quarter) == pytest.approx(np.pi / 2)
-    assert off_axis == pytest.approx(10 / np.hypot(10, 10))  # aim 10 mm up and 10 mm across
-    # Low on the straight stretch the look-ahead lies straight ahead: nothing to aim.
-    assert line.aim_error(base - [0, 0, 0.03] + [0.002, 0, 0.005], base - [0, 0, 0.03], shaft, 0.01, 0.01)[1] < 1e-9
-
-
-def test_aim_shaping_pays_the_expert_for_turning_the_bend_before_it_advances():
-    from cathsim_dmc.policies import make_policy
-
-    turning = []
-    for target in ("bca", "lcca"):
-        env = tasks.load(target, "type1", seed=0, reward="geodesic", aim_weight=2.0)
-        expert = make_policy("expert")
-        env.reset()
-        total = []
-        for _ in range(150):
-            action = expert(None, env)
-            timestep = env.step(action)
-            if env.task.step_info(env.physics).success or timestep.last():
-                break
-            aim_term = timestep.reward + env.task._reward_distance_m  # the reward less its distance term
-            total.append(aim_term)
-            if action[0] == 0.0 and abs(action[1]) > 0.2:  # the expert aims before it advances
-                turning.append(aim_term)
-        assert abs(sum(total)) <= 2.0 + 1e-6  # a potential: the sum telescopes, bounded by the weight
-    # Turning towards the aim is paid for the step it happens (measured with the wall
-    # margin: 5 turning steps, 4 paid, mean +0.05; a flipped sign makes both fail).
-    assert len(turning) >= 3
-    assert np.mean(turning) > 0 and sum(t > 0 for t in turning) > len(turning) / 2
-    with pytest.raises(ValueError, match="aim_weight"):
-        tasks.load("bca", "type1", aim_weight=float("nan"))
-
-
 def test_every_reward_term_is_found_by_name_and_an_unknown_one_names_the_choices():
     from cathsim_dmc.tasks import rewards
 
-    assert set(rewards.DISTANCES) | set(rewards.SHAPING) == {"euclidean", "geodesic", "progress", "aim"}
+    assert set(rewards.DISTANCES) | set(rewards.SHAPING) == {"euclidean", "geodesic", "progress"}
     for name in rewards.DISTANCES + rewards.SHAPING:
         assert callable(rewards.get_reward(name))
     with pytest.raises(ValueError, match="geodesic"):
@@ -205,14 +151,23 @@ def test_a_reward_is_its_terms_added_up():
     from cathsim_dmc.tasks.rewards import NavigationReward
 
     step_m = 0.004
-    shaped = NavigationReward(kind="geodesic", progress_weight=1.0, aim_weight=2.0)
-    # 4 mm of progress (one full step: +1) at 30 mm from the target, the aim's potential up by 0.5.
-    assert shaped.reward(0.034, 0.030, False, step_m, -1.0, -0.5) == pytest.approx(-0.030 + 1.0 + 0.5)
-    assert shaped.reward(0.034, 0.003, True, step_m, -1.0, -0.5) == 10.0  # success: the success reward alone
+    shaped = NavigationReward(kind="geodesic", progress_weight=1.0)
+    # 4 mm of progress (one full step: +1) at 30 mm from the target.
+    assert shaped.step_reward(0.034, 0.030, False, step_m) == pytest.approx(-0.030 + 1.0)
+    assert shaped.step_reward(0.034, 0.003, True, step_m) == 10.0  # success: the success reward alone
     sparse = NavigationReward(dense=False, progress_weight=0.5)
     assert sparse.step_reward(0.030, 0.034, False, step_m) == pytest.approx(-0.5)  # 4 mm away: -weight
-    # A bend turned a half turn from an aim well off the shaft's axis costs the whole weight.
-    assert shaped.aim_potential(np.pi, 1.0) == pytest.approx(-2.0)
-    assert shaped.aim_potential(np.pi, 0.0) == 0.0  # straight ahead the bend does not matter
     with pytest.raises(ValueError, match="euclidean"):
         NavigationReward(kind="manhattan")
+
+
+@pytest.mark.parametrize("name", ["aim_weight", "insertion_limit_margin_m"])
+def test_a_removed_argument_fails_in_one_line_saying_so(name):
+    from cathsim_dmc.tasks import Navigate
+
+    # Navigate itself refuses it before it looks at anything else (here, no entities at all).
+    with pytest.raises(ValueError, match=f"{name} was removed on 2026-11-27") as raised:
+        Navigate(None, None, None, **{name: 0.0})
+    assert "\n" not in str(raised.value)
+    with pytest.raises(TypeError, match="aim_weigth"):  # a misspelling stays an unknown argument
+        Navigate(None, None, None, aim_weigth=0.0)

@@ -163,7 +163,7 @@ def explicit_override(key: str) -> bool:
 # and is evaluated, and replayed for datasets, with them whatever the command line says
 # (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
 IMAGE_OPTIONS = ("renderer", "style", "lao_deg")
-AGENT_OPTIONS = ("insertion_limit_margin_m", "extra_observations", "physics", "catheter")
+AGENT_OPTIONS = ("extra_observations", "physics", "catheter")
 
 
 def pick(options: Mapping, keys: Sequence[str]) -> dict:

@@ -243,17 +243,6 @@ class FollowerRobot(composer.Entity):
         action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         physics.bind(self.actuators).ctrl = action * [self.max_insertion_speed_m_s, self.max_rotation_speed_rad_s]
 
-    def set_insertion_limit(self, physics, limit_m: float | None) -> float:
-        """Limits the carriage's travel to `limit_m` (None: the full stroke); returns the limit.
-
-        An operator sets a follower's travel from the planned path length, so that a wire
-        stalled in a branch meets a stop instead of being fed on until it buckles. The
-        limit bounds the insertion servo's set point (its actuator state), not the joint.
-        """
-        limit = self.stroke_m if limit_m is None else float(np.clip(limit_m, 0.0, self.stroke_m))
-        physics.bind(self._insertion_actuator).actrange = [0.0, limit]
-        return limit
-
     def insertion_m(self, physics) -> float:
         """Carriage travel from the start of the stroke, in metres."""
         return float(np.ravel(physics.bind(self._insertion).qpos)[0])

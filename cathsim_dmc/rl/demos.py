@@ -186,10 +186,6 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
     """
     from cathsim_dmc.supervised.data import load_arrays
 
-    if task.aim_potential_weight:
-        # The aim's potential needs the tip's bend, which datasets do not record.
-        raise ValueError("aim shaping (reward.aim_weight > 0) needs demonstrations recorded live "
-                         "(demos.episodes), not from a dataset (demos.path)")
     keys = list(observation_space.spaces)
     obs_keys = [f"obs_{k}" for k in keys]
     row_keys = ["step", "tip_position_m", "success", "terminated", "truncated", "action"]
