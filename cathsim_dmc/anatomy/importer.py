@@ -56,10 +56,10 @@ from cathsim_dmc.anatomy.asset import json_rounded, write_asset
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.lumen import FoldedSurfaceError, Lumen, check_lumen_surface, lumen_normals, rim_vertices
 from cathsim_dmc.anatomy.polyline import arclength, polyline_length, resample_polyline
-from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges, fix_slivers,
-                                        level_set_surface, manifold_arrays, refine_creases, relax_on_surface,
-                                        repair_folds)
+from cathsim_dmc.anatomy.remesh import level_set_surface, manifold_arrays, refine_creases, relax_on_surface
+from cathsim_dmc.anatomy.rim import clean_rim, close_cap
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance, unsigned_distance
+from cathsim_dmc.anatomy.surface_cleanup import SHORT_EDGE_FRACTION, collapse_short_edges, fix_slivers, repair_folds
 from cathsim_dmc.anatomy.triangles import (boundary_loops, canonical_order, drop_unused_vertices, fan_triangles,
                                            triangle_quality)
 from cathsim_dmc.anatomy.validate import (PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines,
