@@ -4,7 +4,7 @@
 triangle surface whose open-end cap triangles are flagged (the wire enters
 there, so no wall piece is built on them), with the vertex normals the wall is
 extruded along (`lumen_normals`). Generated arches get theirs from
-`build_lumen`, imported meshes from `importer.build_open_lumen`.
+`build_lumen`, imported meshes from `open_end.build_open_lumen`.
 
 `build_lumen`: the zero set of the arch's blended-tube SDF (`sdf.arch_sdf_grid`)
 is meshed (`remesh.level_set_surface`), cut flat by a plane at the inferior end
