@@ -157,9 +157,9 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
             need = PROBE_RADIUS_M if lab == "entry" else MIN_SITE_DEPTH_M
             if d < need:
                 where = "outside the lumen" if d <= 0 else "inside the lumen but too close to the wall"
-                raise MeshImportError(f"{path}: {lab}={format_point(p, digits=4 if units_used == 'm' else 1)} {units_used} "
-                                      f"is {where} ({d * 1e3:+.2f} mm from the wall; needs >= {need * 1e3:.2f} mm "
-                                      f"inside)")
+                raise MeshImportError(f"{path}: {lab}={format_point(p, digits=4 if units_used == 'm' else 1)} "
+                                      f"{units_used} is {where} ({d * 1e3:+.2f} mm from the wall; needs >= "
+                                      f"{need * 1e3:.2f} mm inside)")
 
     use_volume = repair == "volume"
     repairs: List[str] = []

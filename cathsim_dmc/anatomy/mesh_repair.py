@@ -97,9 +97,9 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
             # A flat loop whose points all see its centroid: a vessel end cut by the segmentation.
             if len(loop) < 5 or off > 0.05 * size:
                 raise MeshImportError(
-                    f"{path}: not watertight: a hole of {len(loop)} edges around {format_point(c, digits=3)} {units_label} "
-                    f"is not a flat vessel end ({off / max(size, 1e-12) * 100:.0f}% out of plane); cannot close "
-                    f"it safely")
+                    f"{path}: not watertight: a hole of {len(loop)} edges around {format_point(c, digits=3)} "
+                    f"{units_label} is not a flat vessel end ({off / max(size, 1e-12) * 100:.0f}% out of plane); "
+                    f"cannot close it safely")
             ci = len(vv) + len(added)
             added.append(c)
             caps.append(fan_triangles(loop, ci))
