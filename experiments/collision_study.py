@@ -89,7 +89,7 @@ TARGETS = ("bca", "lcca")
 
 
 def study_params_class():
-    from cathsim_dmc.anatomy.arch import ArchParams
+    from cathsim_dmc.anatomy import ArchParams
 
     @dataclasses.dataclass(frozen=True)
     class StudyParams(ArchParams):

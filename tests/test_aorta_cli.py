@@ -171,7 +171,8 @@ def test_an_oversize_mesh_is_refused_before_any_grid(type1_mm_stl, tmp_path):
 def test_the_grid_memory_is_planned_before_it_is_allocated(type1_mm_stl):
     import re
 
-    from cathsim_dmc.anatomy.importer import MeshImportError, check_grid_memory
+    from cathsim_dmc.anatomy.importer import MeshImportError
+    from cathsim_dmc.anatomy.mesh_grid import check_grid_memory
 
     _, src = type1_mm_stl
     v, f = src.visual_vertices.astype(np.float64), src.visual_faces.astype(np.int64)

@@ -12,8 +12,8 @@ import trimesh
 
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.isosurface import zero_surface
-from cathsim_dmc.anatomy.remesh import folded_faces, repair_folds
 from cathsim_dmc.anatomy.sdf import SDFGrid
+from cathsim_dmc.anatomy.surface_cleanup import folded_faces, repair_folds
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 from cathsim_dmc.model_check import validate_and_compile
 

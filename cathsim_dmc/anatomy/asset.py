@@ -379,20 +379,21 @@ def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildRe
     `mesher_version`: `lumen.build_lumen`'s; None is the current `lumen.MESHER_VERSION`
     (the shipped presets pin theirs: `SHIPPED_MESHER_VERSIONS`).
     """
-    from cathsim_dmc.anatomy import arch as arch_lib
+    from cathsim_dmc.anatomy.arch import build_arch, path_to_site
     from cathsim_dmc.anatomy.lumen import MESHER_VERSION, build_lumen
+    from cathsim_dmc.anatomy.parameters import BRANCHES
     from cathsim_dmc.anatomy.sdf import unsigned_distance
     from cathsim_dmc.anatomy.wall import extrude_prisms
 
     mesher_version = MESHER_VERSION if mesher_version is None else int(mesher_version)
     t0 = time.perf_counter()
-    model = arch_lib.build_arch(params)
+    model = build_arch(params)
     lumen = build_lumen(model, mesher_version=mesher_version)
     prisms = extrude_prisms(lumen, params.wall_thickness_m)
     centerlines, lengths = {}, {}
     wall = lumen.faces[~lumen.cap]
-    for b in arch_lib.BRANCHES:
-        pts = arch_lib.path_to_site(model, b)
+    for b in BRANCHES:
+        pts = path_to_site(model, b)
         # Lumen radius = distance to the wall (the open end is not wall).
         centerlines[b] = (pts, unsigned_distance(lumen.vertices, wall, pts))
         lengths[b] = polyline_length(pts)
@@ -420,7 +421,7 @@ def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildRe
     write_asset(
         folder, name=p.name, description=description,
         vertices=lumen.vertices, faces=lumen.faces, hulls=prisms,
-        sites={b: model.sites[b] for b in arch_lib.BRANCHES},
+        sites={b: model.sites[b] for b in BRANCHES},
         entry_position=model.entry_position, entry_direction=model.entry_direction,
         centerlines=centerlines, wall_thickness_m=p.wall_thickness_m,
         params=params_record(p),
@@ -431,7 +432,7 @@ def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildRe
                "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
                "arch_type": model.arch_type_measured,
                **({"arch_obliquity_deg": round(model.obliquity_deg, 3)} if p.arch_rotation_deg else {}),
-               "ostia": {b: json_rounded(model.ostia[b]) for b in arch_lib.BRANCHES},
+               "ostia": {b: json_rounded(model.ostia[b]) for b in BRANCHES},
                "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
                "max_aortic_diameter_m": json_rounded(max_diameter),
                **({"mesher_version": mesher_version} if mesher_version != UNRECORDED_MESHER_VERSION else {})})

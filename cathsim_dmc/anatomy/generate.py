@@ -29,9 +29,11 @@ from typing import Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from cathsim_dmc.anatomy.arch import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, PRESETS,
-                                      ArchParams, build_arch, normalize_arch_type)
+from cathsim_dmc.anatomy.arch import build_arch
 from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE, params_record
+from cathsim_dmc.anatomy.parameters import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, ArchParams,
+                                            normalize_arch_type)
+from cathsim_dmc.anatomy.presets import PRESETS
 
 # Bump when the pipeline's output for the same parameters changes (invalidates caches),
 # e.g. with lumen.MESHER_VERSION, which generated arches are built at. 2: mesher version 2

@@ -4,12 +4,12 @@
 triangle surface whose open-end cap triangles are flagged (the wire enters
 there, so no wall piece is built on them), with the vertex normals the wall is
 extruded along (`lumen_normals`). Generated arches get theirs from
-`build_lumen`, imported meshes from `importer.build_open_lumen`.
+`build_lumen`, imported meshes from `open_end.build_open_lumen`.
 
 `build_lumen`: the zero set of the arch's blended-tube SDF (`sdf.arch_sdf_grid`)
 is meshed (`remesh.level_set_surface`), cut flat by a plane at the inferior end
 of the descending aorta (the rim triangles are regularised in cylindrical
-coordinates, `remesh.clean_rim`), refined (at creases, and where a triangle
+coordinates, `rim.clean_rim`), refined (at creases, and where a triangle
 cuts into a narrow vessel: `remesh.refine_sagging`) and relaxed on the surface,
 and closed with a flat cap. Everything is deterministic: the mesher's output is
 put in canonical order before it is processed.
@@ -31,10 +31,11 @@ import numpy as np
 from scipy import spatial
 
 from cathsim_dmc.anatomy.arch import ArchModel
-from cathsim_dmc.anatomy.remesh import (SHORT_EDGE_FRACTION, clean_rim, close_cap, collapse_short_edges,
-                                        fix_slivers, folded_faces, level_set_surface, manifold_arrays,
-                                        refine_creases, refine_sagging, relax_on_surface)
+from cathsim_dmc.anatomy.remesh import (level_set_surface, manifold_arrays, refine_creases, refine_sagging,
+                                        relax_on_surface)
+from cathsim_dmc.anatomy.rim import clean_rim, close_cap
 from cathsim_dmc.anatomy.sdf import SDFGrid, arch_sdf_grid
+from cathsim_dmc.anatomy.surface_cleanup import SHORT_EDGE_FRACTION, collapse_short_edges, fix_slivers, folded_faces
 from cathsim_dmc.anatomy.triangles import canonical_order, drop_unused_vertices, edge_faces, vertex_normals
 
 
