@@ -121,6 +121,16 @@ def composition_error(error: Exception) -> str:
     return f"cannot parse {override!r}: {message}" if override else message
 
 
+def register_resolvers() -> None:
+    """`${pid:}` in conf/: default run folders carry the process id after the time (to the
+    microsecond), so runs started at once never share one (conf/hydra/output)."""
+    import os
+
+    from omegaconf import OmegaConf
+
+    OmegaConf.register_new_resolver("pid", os.getpid, replace=True)
+
+
 def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
               paths_allowed: Sequence[str] = ()):
     """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
@@ -130,6 +140,7 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
     from cathsim_dmc.paths import conf_root
 
     register_schemas()  # conf/ composes on them
+    register_resolvers()
     if "aorta" in argv_choices:
         sys.argv[1:] = expand_aorta_folder(sys.argv[1:], list(argv_choices["aorta"]()))
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)

@@ -107,11 +107,24 @@ def _group_choices(group: str):
     return choices
 
 
+def resume_in_place(argv: list) -> list:
+    """`resume=<run>` continues in the run's own folder: Hydra's log of the resumed part
+    goes there too (appended), unless the command line names another hydra.run.dir. The
+    run's config.yaml is its config; Hydra's copy of the resumed invocation is not kept."""
+    resume = [arg.split("=", 1)[1] for arg in argv if arg.startswith("resume=")]
+    if resume and resume[-1] not in ("", "null") and not any(a.startswith("hydra.run.dir=") for a in argv):
+        return [*argv, f"hydra.run.dir={resume[-1]}", "hydra.output_subdir=null"]
+    return list(argv)
+
+
 def main():
+    import sys
+
     from cathsim_dmc.cli._common import run_hydra
     from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.tasks import TARGETS, aorta_choices
 
+    sys.argv[1:] = resume_in_place(sys.argv[1:])
     run_hydra(run, "train", {
         "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
         "algo": _group_choices("algo"), "reward": _group_choices("reward"), "demos": _group_choices("demos"),

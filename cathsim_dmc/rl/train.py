@@ -15,8 +15,8 @@ from pathlib import Path
 from cathsim_dmc import run_files
 from cathsim_dmc.config import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
-                                        checkpoint_step, resume_checkpoint, save_checkpoint, save_model,
-                                        write_policy_file)
+                                        checkpoint_interval, checkpoint_step, resume_checkpoint, save_checkpoint,
+                                        save_model, write_policy_file)
 from cathsim_dmc.rl.replay import check_replay_memory, grow_replay_buffer
 
 log = logging.getLogger("cathsim-train")
@@ -157,6 +157,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     ckpt_dir = run_dir / CHECKPOINT_DIR
     if resume:
         last, step, buffer_file = resume_checkpoint(ckpt_dir)
+        log.info("resuming from step %d of %d (%s)", step, total, last)
     if trainer.get("normalize_observations"):
         # The normaliser of step_<n>.zip, written before last.zip, is the one that matches it.
         env = normalize_observations(env, ckpt_dir / f"step_{step}.zip" if resume else None)
@@ -181,7 +182,8 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     start_steps, t0 = model.num_timesteps, time.perf_counter()
     remaining = total - model.num_timesteps
     if remaining > 0:
-        built_in = [EpisodeStats(), Checkpoints(trainer["checkpoint_every"], ckpt_dir, trainer["save_replay_buffer"])]
+        built_in = [EpisodeStats(),
+                    Checkpoints(checkpoint_interval(trainer), ckpt_dir, trainer["save_replay_buffer"])]
         if trainer["eval_every"] > 0 and make_eval_env is not None:
             # Selection episodes are seeded apart from the final report's (10_000 + seed), so
             # the report is not scored on the episodes the best checkpoint was chosen on, and
