@@ -62,6 +62,11 @@ def load_normalizer(path):
     return normalizer
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, after the work it stopped kept what was complete; its message says what was
+    kept and how to continue. The command-line tools print it as one line (exit status 130)."""
+
+
 # -- one writer per run folder ---------------------------------------------------------
 LOCK_FILE = ".lock"  # in a run folder: the pid of the process writing into it
 

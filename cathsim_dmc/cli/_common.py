@@ -11,12 +11,20 @@ import sys
 from typing import Callable, Mapping, Sequence
 
 USAGE_ERROR = 2
+INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process Ctrl-C stopped
 ASSET_FOLDER_OPTION = "folder"  # conf/aorta/folder.yaml: an asset folder given as aorta=DIR
 
 
 def fail(message: str) -> "NoReturn":  # noqa: F821
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(USAGE_ERROR)
+
+
+def interrupted(error: KeyboardInterrupt) -> "NoReturn":  # noqa: F821
+    """Ctrl-C: one line (what was kept, how to continue; `run_files.Interrupted` says it) and
+    exit status 130, no traceback."""
+    print(f"interrupted: {error or 'nothing was written'}", file=sys.stderr)
+    raise SystemExit(INTERRUPTED)
 
 
 def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]],
@@ -133,7 +141,16 @@ def register_resolvers() -> None:
 
 def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
               paths_allowed: Sequence[str] = ()):
-    """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
+    """Validate argv, then run `task_function` as a Hydra app on the shipped conf/; Ctrl-C
+    at any point ends with one line and exit status 130."""
+    try:
+        return _run_hydra(task_function, config_name, argv_choices, paths_allowed)
+    except KeyboardInterrupt as error:  # Hydra passes it on from the task, as from composing
+        interrupted(error)
+
+
+def _run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
+               paths_allowed: Sequence[str] = ()):
     import hydra
 
     from cathsim_dmc.config import register_schemas

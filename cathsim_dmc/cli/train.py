@@ -31,6 +31,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
     from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, best_record
     from cathsim_dmc.rl.train import make_vec_env, train
+    from cathsim_dmc.run_files import Interrupted
 
     resume = cfg.get("resume")
     if resume:
@@ -89,6 +90,9 @@ def run(cfg) -> dict:
                                  cfg.trainer.final_eval_episodes or cfg.trainer.eval_episodes,
                                  seed=10_000 + seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": seed})
+    except Interrupted as error:
+        raise Interrupted(f"training finished ({run_dir / 'final_model.zip'}); {error}; evaluate it again "
+                          f"with: cathsim-eval policy={run_dir} seed={10_000 + seed}") from None
     finally:
         eval_env.close()
     print((run_dir / "eval" / METRICS_MD).read_text(), end="")
