@@ -43,6 +43,11 @@ def _step(checkpoint) -> int:
         return json.loads(archive.read("data"))["num_timesteps"]
 
 
+def _log(run) -> str:
+    """Hydra's log file of a run folder."""
+    return "".join(path.read_text() for path in run.glob("*.log"))
+
+
 def _assert_interrupted(process, log, timeout=600):
     process.wait(timeout=timeout)
     stderr = open(f"{log}.err").read()
@@ -59,7 +64,7 @@ def test_a_run_folder_evaluates_its_best_checkpoint_with_the_numbers_of_its_repo
                              cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert trained.returncode == 0, trained.stderr[-2000:]
     assert (run / "checkpoints" / "best.zip").is_file()
-    assert "recipe: algo=sac_tuned: batch_size 16" in (run / "train.log").read_text()
+    assert "recipe: algo=sac_tuned: batch_size 16" in _log(run)
     # The default cadence: a checkpoint with every periodic evaluation.
     assert {"step_20.zip", "step_40.zip", "step_60.zip"} <= {p.name for p in (run / "checkpoints").iterdir()}
 
@@ -141,7 +146,7 @@ def test_the_default_cadence_resumes_a_run_killed_at_a_random_step(tmp_path):
                              timeout=900)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert _step(run / "final_model.zip") == 100
-    assert f"resuming from step {step} of 100" in (run / "train.log").read_text()
+    assert f"resuming from step {step} of 100" in _log(run)
     assert not (tmp_path / "outputs").exists()
 
 

@@ -23,6 +23,10 @@ def fail(message: str) -> "NoReturn":  # noqa: F821
 def interrupted(error: KeyboardInterrupt) -> "NoReturn":  # noqa: F821
     """Ctrl-C: one line (what was kept, how to continue; `run_files.Interrupted` says it) and
     exit status 130, no traceback."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):  # an open bar would share the line
+        bar.close()
     print(f"interrupted: {error or 'nothing was written'}", file=sys.stderr)
     raise SystemExit(INTERRUPTED)
 
