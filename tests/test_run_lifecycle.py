@@ -168,3 +168,16 @@ def test_an_image_preset_takes_its_measured_recipe_unless_algo_is_given():
         assert algo("obs=enn", "algo=sac_tuned") == ("sac_tuned", 256, False)
         assert algo("obs=enn", "algo=sac") == ("sac", 256, False)
         assert algo("obs=enn", "algo.batch_size=32") == ("sac_tuned", 32, True)
+
+
+def test_ctrl_c_stops_a_collection_keeping_its_finished_shards(tmp_path):
+    out = tmp_path / "data"
+    process = _start("collect", ["episodes=50", "episodes_per_shard=1", "task.max_steps=10", "progress_bar=false",
+                                 f"out={out}", f"hydra.run.dir={tmp_path}/run"], tmp_path, tmp_path / "collect")
+    _wait_for(lambda: len(list(out.glob("shard_*.npz"))) >= 2)
+    process.send_signal(signal.SIGINT)
+    line = _assert_interrupted(process, tmp_path / "collect")
+    kept = json.loads((out / "manifest.json").read_text())["episodes"]
+    assert 2 <= kept < 50 and f"{kept} finished episodes kept in {out}" in line
+    # (a shard written just before the manifest was updated is complete, and counted by a continuation)
+    assert kept <= len(list(out.glob("shard_*.npz"))) <= kept + 1
