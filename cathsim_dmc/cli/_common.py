@@ -27,7 +27,7 @@ def interrupted(error: KeyboardInterrupt) -> "NoReturn":  # noqa: F821
 
     for bar in list(getattr(tqdm, "_instances", ())):  # an open bar would share the line
         bar.close()
-    print(f"interrupted: {error or 'nothing was written'}", file=sys.stderr)
+    print(f"interrupted: {error or 'stopped before it finished'}", file=sys.stderr)
     raise SystemExit(INTERRUPTED)
 
 
