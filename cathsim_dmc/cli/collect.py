@@ -31,8 +31,8 @@ def run(cfg) -> dict:
     options = {k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs", *IMAGE_OPTIONS)}
     out = Path(str(cfg.out)) if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
     episodes = check_number("episodes", cfg.episodes, 1, whole=True)
-    if cfg.get("out"):  # outside the Hydra run folder (which its own lock holds)
-        lock_folder(out)
+    if cfg.get("out") and not (out.exists() and not out.is_dir()):  # (a file: `collect` says so)
+        lock_folder(out)  # outside the Hydra run folder, which its own lock holds
     try:
         manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy), episodes,
                            check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
