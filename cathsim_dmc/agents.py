@@ -34,15 +34,17 @@ class CheckpointPolicy:
     :param env_options: environment options it was trained with that change what it sees
         or drives (e.g. extra observations, the physics settings)
     :param normalizer: SB3's VecNormalize with the training's observation statistics, or None
+    :param path: the file it was loaded from (None: a model in memory)
     """
 
     def __init__(self, model, obs_preset: str, image_options: dict | None = None, env_options: dict | None = None,
-                 normalizer=None):
+                 normalizer=None, path=None):
         self.model = model
         self.obs_preset = obs_preset
         self.image_options = dict(image_options or {})
         self.env_options = dict(env_options or {})
         self.normalizer = normalizer
+        self.path = None if path is None else Path(path)
 
     def __call__(self, observation, env) -> np.ndarray:
         # A model with memory (a frame-stacking student) starts afresh with each episode.
@@ -55,11 +57,17 @@ class CheckpointPolicy:
 
 
 def find_checkpoint(path) -> Path:
-    """The model file for `path`: a checkpoint file itself, or the newest one in a run folder."""
+    """The model file for `path`: a checkpoint file itself, or in a run folder the one its
+    own final report evaluated: checkpoints/best.zip when the run kept one (and its
+    config.yaml does not say trainer.final_policy=final), else the final model, else the
+    newest checkpoint."""
     path = Path(path)
     if path.is_file():
         return path
     if path.is_dir():
+        best = path / "checkpoints" / "best.zip"
+        if best.is_file() and _final_policy(path) == "best":
+            return best
         for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
             if candidate.is_file():
                 return candidate
@@ -68,6 +76,16 @@ def find_checkpoint(path) -> Path:
             return zips[-1]
         raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")
     raise FileNotFoundError(f"no checkpoint at {path}")
+
+
+def _final_policy(run_dir: Path) -> str:
+    """trainer.final_policy of a cathsim-train run folder ("best" when it does not say)."""
+    saved = run_dir / "config.yaml"
+    if not saved.is_file():
+        return "best"
+    from omegaconf import OmegaConf
+
+    return str(OmegaConf.select(OmegaConf.load(saved), "trainer.final_policy", default="best"))
 
 
 def load_checkpoint_policy(path) -> CheckpointPolicy:
@@ -111,7 +129,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             normalizer = load_normalizer(stats)
         except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
             raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
-    return CheckpointPolicy(model, info["obs"], info.get("image_options"), env_options, normalizer)
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"), env_options, normalizer, path=model_path)
 
 
 def trained_env_options(model_path, env_options: dict | None) -> dict:

@@ -125,7 +125,9 @@ class TrainerConfig:
     eval_every: int = _count(1000)
     eval_episodes: int = _count(10, minimum=1)  # of each periodic evaluation (and the final one, if not below)
     final_eval_episodes: Optional[int] = _count(20, minimum=1)  # of the final report (null: eval_episodes)
-    checkpoint_every: int = _count(10_000)  # steps (0: only at the end)
+    # steps between checkpoints; null: with every periodic evaluation (eval_every; 1000 steps
+    # without one), so a killed run resumes from its last evaluation; 0: only at the end
+    checkpoint_every: Optional[int] = _count(None)
     save_replay_buffer: bool = False   # also checkpoint the replay buffer (large with images)
     device: str = _number("auto", choices=DEVICES)  # or cuda:<index>
     # 1 thread: 71 ms per SAC update against 478 ms with 2 on a busy 2-core machine; 0: torch's default

@@ -25,6 +25,14 @@ METRICS_MD = "metrics.md"
 VIDEO_FORMATS = ("gif", "mp4")
 
 
+class EpisodesInterrupted(KeyboardInterrupt):
+    """Ctrl-C during `run_episodes`; `summaries` holds the episodes it finished."""
+
+    def __init__(self, summaries: list):
+        super().__init__()
+        self.summaries = summaries
+
+
 def check_report_options(episodes: int, video_format: str = "gif", video_size: int = 240) -> None:
     """ValueError for settings `evaluate_policy` cannot honour: checked before any work."""
     from cathsim_dmc.checks import check_number
@@ -42,7 +50,8 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
     per-episode summaries (steps, return, success, ...).
 
     `recorder` (a TrajectoryRecorder) receives every step; `video_frames` (a list) the
-    top view of the first episode.
+    top view of the first episode. Ctrl-C raises EpisodesInterrupted with the finished
+    episodes' summaries.
     """
     from cathsim_dmc.metrics import remaining_centerline_length_m
     from cathsim_dmc.observables import CameraCache, video_frame
@@ -52,33 +61,37 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
     max_steps = env.task.max_steps
     random_anatomy = hasattr(getattr(env, "dm_env", None), "anatomy_name")  # aorta=random: a new anatomy per episode
     progress = tqdm(total=episodes * max_steps, unit="step", desc="evaluating", disable=not show_progress)
-    for episode in range(episodes):
-        observation, info = env.reset(seed=seed + episode)
-        if recorder is not None:
-            centerline = env.task.aorta.centerline(env.task.target_name)  # this episode's anatomy
-            recorder.start_episode(info["tip_position_m"],
-                                   remaining_centerline_length_m(centerline, info["tip_position_m"]), observation,
-                                   aorta=info["aorta"] if random_anatomy else None,
-                                   target_position_m=env.task.target_position_m)
-        total, done = 0.0, False
-        while not done:
-            action = policy(observation, env)
-            observation, reward, terminated, truncated, info = env.step(action)
+    try:
+        for episode in range(episodes):
+            observation, info = env.reset(seed=seed + episode)
             if recorder is not None:
-                recorder.record(action, reward, info, terminated, truncated, observation)
-            total += reward
-            done = terminated or truncated
-            progress.update(max_steps - info["step"] + 1 if done else 1)
-            if video_frames is not None and episode == 0:
-                video_frames.append(video_frame(env.physics, video_size, cache=cameras))
-        summaries.append({
-            "episode": episode, "seed": seed + episode, "steps": info["step"], "return": total,
-            "success": bool(info["success"]), "diverged": bool(info["diverged"]),
-            "final_distance_m": info["target_distance_m"], **({"aorta": info["aorta"]} if random_anatomy else {}),
-        })
-        if log_episodes:
-            log.info("episode %d: %s", episode, summaries[-1])
-    progress.close()
+                centerline = env.task.aorta.centerline(env.task.target_name)  # this episode's anatomy
+                recorder.start_episode(info["tip_position_m"],
+                                       remaining_centerline_length_m(centerline, info["tip_position_m"]), observation,
+                                       aorta=info["aorta"] if random_anatomy else None,
+                                       target_position_m=env.task.target_position_m)
+            total, done = 0.0, False
+            while not done:
+                action = policy(observation, env)
+                observation, reward, terminated, truncated, info = env.step(action)
+                if recorder is not None:
+                    recorder.record(action, reward, info, terminated, truncated, observation)
+                total += reward
+                done = terminated or truncated
+                progress.update(max_steps - info["step"] + 1 if done else 1)
+                if video_frames is not None and episode == 0:
+                    video_frames.append(video_frame(env.physics, video_size, cache=cameras))
+            summaries.append({
+                "episode": episode, "seed": seed + episode, "steps": info["step"], "return": total,
+                "success": bool(info["success"]), "diverged": bool(info["diverged"]),
+                "final_distance_m": info["target_distance_m"], **({"aorta": info["aorta"]} if random_anatomy else {}),
+            })
+            if log_episodes:
+                log.info("episode %d: %s", episode, summaries[-1])
+    except KeyboardInterrupt as interrupt:  # the caller may keep the finished episodes
+        raise EpisodesInterrupted(summaries) from interrupt
+    finally:
+        progress.close()
     return summaries
 
 
@@ -107,6 +120,8 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
 
 def _row_label(label: dict) -> dict:
     policy = label["policy"] if label.get("seed") is None else f"{label['policy']} (seed {label['seed']})"
+    if label.get("partial"):  # Ctrl-C stopped the evaluation (evaluate_policy)
+        policy += f" [partial: {label['episodes_finished']} of {label['episodes_requested']} episodes]"
     return {"Target": label["task"].upper(), "Aorta": aorta_label(label["aorta"]), "Policy": policy}
 
 
@@ -158,12 +173,29 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     recorder = TrajectoryRecorder(task.target_name, env.aorta_name, task.target_position_m,
                                   policy=policy_name, record_observations=save_observations)
     frames = [] if video else None
-    summaries = run_episodes(env, policy, episodes, seed, recorder, frames, video_size, show_progress)
+    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
+             "physics": task.physics_setting, **(label or {})}
+    try:
+        summaries = run_episodes(env, policy, episodes, seed, recorder, frames, video_size, show_progress)
+    except EpisodesInterrupted as interrupt:
+        # Ctrl-C: the finished episodes get their report, labelled partial.
+        from cathsim_dmc.run_files import Interrupted
+
+        summaries = interrupt.summaries
+        if not summaries:
+            raise Interrupted(f"evaluation stopped before its first episode ended; nothing written in {out_dir}")
+        recorder.keep_episodes(len(summaries))
+        label.update(partial=True, episodes_finished=len(summaries), episodes_requested=episodes)
+        _write_results(recorder, frames, video_format, task, label, out_dir, summaries)
+        raise Interrupted(f"evaluation stopped after {len(summaries)} of {episodes} episodes; their report "
+                          f"(labelled partial) is in {out_dir}") from None
+    return _write_results(recorder, frames, video_format, task, label, out_dir, summaries)
+
+
+def _write_results(recorder, frames, video_format, task, label, out_dir, summaries) -> dict:
     recorder.save(out_dir / "trajectories.npz")
     if frames:
         write_video(out_dir / f"video.{video_format}", frames)
-    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
-             "physics": task.physics_setting, **(label or {})}
     # One anatomy's picture cannot hold paths from several (aorta=random): no path.png then.
     arrays = recorder.arrays()
     asset = None if "episode_aorta" in arrays else task.aorta.asset

@@ -60,3 +60,73 @@ def load_normalizer(path):
         normalizer = pickle.load(f)
     normalizer.training = False
     return normalizer
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, after the work it stopped kept what was complete; its message says what was
+    kept and how to continue. The command-line tools print it as one line (exit status 130)."""
+
+
+# -- one writer per run folder ---------------------------------------------------------
+LOCK_FILE = ".lock"  # in a run folder: the pid of the process writing into it
+
+
+class FolderInUse(RuntimeError):
+    """Another live process writes into the folder (its .lock names it)."""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def lock_folder(folder) -> Path:
+    """Make `folder` this process's until it exits: its pid in `<folder>/.lock`.
+
+    The lock appears whole or not at all (a hard link of a written file), so two
+    processes cannot both take it. A lock whose process is gone (killed) is taken over; a
+    live one raises FolderInUse naming its pid. Outputs of two runs then never mix.
+    """
+    import atexit
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock, pid = folder / LOCK_FILE, os.getpid()
+    mine = folder / f".lock.{pid}{TEMPORARY_MARK}"
+    mine.write_text(str(pid))
+    try:
+        for _ in range(3):
+            try:
+                os.link(mine, lock)
+            except FileExistsError:
+                try:
+                    owner = int(lock.read_text() or 0)
+                except (FileNotFoundError, ValueError):
+                    owner = 0
+                if owner == pid:
+                    return lock
+                if owner and _alive(owner):
+                    raise FolderInUse(f"{folder} is in use by another run (pid {owner}); "
+                                      f"choose another output folder or wait for that run to end") from None
+                lock.unlink(missing_ok=True)  # its process is gone
+                continue
+            atexit.register(unlock_folder, folder)
+            return lock
+    finally:
+        mine.unlink(missing_ok=True)
+    raise FolderInUse(f"{folder}: could not take its {LOCK_FILE}")
+
+
+def unlock_folder(folder) -> None:
+    """Remove `folder`'s lock if this process holds it."""
+    lock = Path(folder) / LOCK_FILE
+    try:
+        if int(lock.read_text() or 0) == os.getpid():
+            lock.unlink()
+    except (FileNotFoundError, ValueError):
+        pass

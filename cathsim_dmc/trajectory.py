@@ -112,6 +112,16 @@ class TrajectoryRecorder:
         if "mean_contact_force_n" in info:
             self.mean_forces.append(info["mean_contact_force_n"])
 
+    def keep_episodes(self, count: int) -> None:
+        """Forget every episode after the first `count` (an unfinished one, after Ctrl-C)."""
+        rows = sum(1 for episode in self.rows["episode"] if episode < count)
+        for values in (*self.rows.values(), *self.observations.values()):
+            del values[rows:]
+        del self.mean_forces[rows:]
+        for values in (self.starts, self.optimal_paths, self.episode_aortas, self.episode_targets,
+                       *self.start_observations.values()):
+            del values[count:]
+
     def arrays(self) -> dict:
         out = {key: np.asarray(self.rows[key], dtype=dtype) for key, dtype in _PER_STEP.items()}
         out["action"] = action_rows(out["action"], width=2)

@@ -11,12 +11,24 @@ import sys
 from typing import Callable, Mapping, Sequence
 
 USAGE_ERROR = 2
+INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process Ctrl-C stopped
 ASSET_FOLDER_OPTION = "folder"  # conf/aorta/folder.yaml: an asset folder given as aorta=DIR
 
 
 def fail(message: str) -> "NoReturn":  # noqa: F821
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(USAGE_ERROR)
+
+
+def interrupted(error: KeyboardInterrupt) -> "NoReturn":  # noqa: F821
+    """Ctrl-C: one line (what was kept, how to continue; `run_files.Interrupted` says it) and
+    exit status 130, no traceback."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):  # an open bar would share the line
+        bar.close()
+    print(f"interrupted: {error or 'stopped before it finished'}", file=sys.stderr)
+    raise SystemExit(INTERRUPTED)
 
 
 def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]],
@@ -121,29 +133,51 @@ def composition_error(error: Exception) -> str:
     return f"cannot parse {override!r}: {message}" if override else message
 
 
+def register_resolvers() -> None:
+    """`${pid:}` in conf/: default run folders carry the process id after the time (to the
+    microsecond), so runs started at once never share one (conf/hydra/output)."""
+    import os
+
+    from omegaconf import OmegaConf
+
+    OmegaConf.register_new_resolver("pid", os.getpid, replace=True)
+
+
 def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
               paths_allowed: Sequence[str] = ()):
-    """Validate argv, then run `task_function` as a Hydra app on the shipped conf/."""
+    """Validate argv, then run `task_function` as a Hydra app on the shipped conf/; Ctrl-C
+    at any point ends with one line and exit status 130."""
+    try:
+        return _run_hydra(task_function, config_name, argv_choices, paths_allowed)
+    except KeyboardInterrupt as error:  # Hydra passes it on from the task, as from composing
+        interrupted(error)
+
+
+def _run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
+               paths_allowed: Sequence[str] = ()):
     import hydra
 
     from cathsim_dmc.config import register_schemas
     from cathsim_dmc.paths import conf_root
 
     register_schemas()  # conf/ composes on them
+    register_resolvers()
     if "aorta" in argv_choices:
         sys.argv[1:] = expand_aorta_folder(sys.argv[1:], list(argv_choices["aorta"]()))
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)
     check_composes(config_name, sys.argv[1:])
 
+    from cathsim_dmc.run_files import FolderInUse
     from cathsim_dmc.wall_field import NativeBuildError
 
     def guarded(cfg):
         # Hydra prints a traceback for exceptions from the task; a bad value in the
         # config is the user's input, so it gets our one-line error (SystemExit passes),
-        # as does a machine without the C compiler that physics=fast needs once.
+        # as does a machine without the C compiler that physics=fast needs once, and a run
+        # folder another run holds.
         try:
             return task_function(cfg)
-        except (ValueError, FileNotFoundError, MemoryError, NativeBuildError) as error:
+        except (ValueError, FileNotFoundError, MemoryError, NativeBuildError, FolderInUse) as error:
             fail(str(error))
 
     guarded.__name__ = getattr(task_function, "__name__", "app")

@@ -21,7 +21,8 @@ def run(cfg) -> dict:
 
     from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
-    from cathsim_dmc.supervised.collect import collect
+    from cathsim_dmc.run_files import Interrupted, lock_folder
+    from cathsim_dmc.supervised.collect import MANIFEST, collect, read_manifest
 
     kwargs = env_kwargs(cfg)
     # The dataset always records every modality (supervised/collect.py); the obs group gives the
@@ -29,12 +30,20 @@ def run(cfg) -> dict:
     images = pick(kwargs, IMAGE_OPTIONS)
     options = {k: v for k, v in kwargs.items() if k not in ("task", "aorta", "obs", *IMAGE_OPTIONS)}
     out = Path(str(cfg.out)) if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
-    manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy),
-                       check_number("episodes", cfg.episodes, 1, whole=True),
-                       check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
-                       check_number("seed", cfg.seed, 0, whole=True), options, images,
-                       show_progress=cfg.progress_bar,
-                       action_noise_std=check_number("action_noise_std", cfg.action_noise_std, 0.0))
+    episodes = check_number("episodes", cfg.episodes, 1, whole=True)
+    if cfg.get("out") and not (out.exists() and not out.is_dir()):  # (a file: `collect` says so)
+        lock_folder(out)  # outside the Hydra run folder, which its own lock holds
+    try:
+        manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy), episodes,
+                           check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
+                           check_number("seed", cfg.seed, 0, whole=True), options, images,
+                           show_progress=cfg.progress_bar,
+                           action_noise_std=check_number("action_noise_std", cfg.action_noise_std, 0.0))
+    except KeyboardInterrupt:
+        # Every finished shard is in the manifest (written atomically after each shard).
+        kept = read_manifest(out / MANIFEST)["episodes"] if (out / MANIFEST).is_file() else 0
+        raise Interrupted(f"collection stopped; {kept} finished episodes kept in {out}; continue with: "
+                          f"cathsim-collect out={out} episodes={episodes}") from None
     print(f"{manifest['episodes']} episodes, {manifest['samples']} samples, "
           f"{manifest['successes']} reached the target; dataset in {out}")
     return manifest

@@ -27,6 +27,8 @@ def evaluate(cfg) -> dict:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     policy = make_policy(str(cfg.policy), seed=seed)
     checkpoint = isinstance(policy, CheckpointPolicy)
+    if checkpoint:
+        print(f"evaluating {policy.path}")
     if checkpoint and explicit_override("obs") and cfg.obs.name != policy.obs_preset:
         # A checkpoint is evaluated on the observations it was trained on; a silent switch
         # would report numbers for a configuration nobody asked for.

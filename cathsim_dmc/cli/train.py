@@ -31,6 +31,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
     from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, best_record
     from cathsim_dmc.rl.train import make_vec_env, train
+    from cathsim_dmc.run_files import Interrupted, lock_folder
 
     resume = cfg.get("resume")
     if resume:
@@ -38,6 +39,7 @@ def run(cfg) -> dict:
         saved = run_dir / "config.yaml"
         if not saved.is_file():
             raise FileNotFoundError(f"resume={resume!r} is not a cathsim-train run folder (no config.yaml)")
+        lock_folder(run_dir)  # one process at a time continues a run, whatever its hydra.run.dir
         # The run continues with its own settings (in today's schema); only the step budget may be raised.
         original = upgrade_saved_config(OmegaConf.load(saved))
         if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
@@ -57,6 +59,9 @@ def run(cfg) -> dict:
     demos = OmegaConf.to_container(cfg.demos, resolve=True)
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
     if not resume:
+        log.info("recipe: %s: batch_size %d, %s", recipe(HydraConfig.get().runtime.choices), cfg.algo.batch_size,
+                 "one features extractor shared by actor and critics" if cfg.algo.share_features_extractor
+                 else "separate features extractors for actor and critics")
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
@@ -89,6 +94,9 @@ def run(cfg) -> dict:
                                  cfg.trainer.final_eval_episodes or cfg.trainer.eval_episodes,
                                  seed=10_000 + seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
                                  label={"seed": seed})
+    except Interrupted as error:
+        raise Interrupted(f"training finished ({run_dir / 'final_model.zip'}); {error}; evaluate it again "
+                          f"with: cathsim-eval policy={run_dir} seed={10_000 + seed}") from None
     finally:
         eval_env.close()
     print((run_dir / "eval" / METRICS_MD).read_text(), end="")
@@ -107,11 +115,42 @@ def _group_choices(group: str):
     return choices
 
 
+def resume_in_place(argv: list) -> list:
+    """`resume=<run>` continues in the run's own folder: Hydra's log of the resumed part
+    goes there too (appended), unless the command line names another hydra.run.dir. The
+    run's config.yaml is its config; Hydra's copy of the resumed invocation is not kept."""
+    resume = [arg.split("=", 1)[1] for arg in argv if arg.startswith("resume=")]
+    if resume and resume[-1] not in ("", "null") and not any(a.startswith("hydra.run.dir=") for a in argv):
+        return [*argv, f"hydra.run.dir={resume[-1]}", "hydra.output_subdir=null"]
+    return list(argv)
+
+
+def explicit_algo(argv: list) -> list:
+    """An `algo=` on the command line is taken as it is: the image presets' settings
+    (conf/algo_for_obs, chosen by train.yaml with the default algo) are then left out."""
+    if any(arg.split("=", 1)[0] == "algo" for arg in argv) and "~algo_for_obs" not in argv:
+        return [*argv, "~algo_for_obs"]
+    return list(argv)
+
+
+def recipe(choices) -> str:
+    """The log's line naming the algorithm settings a run composed (Hydra's group choices)."""
+    from cathsim_dmc.paths import conf_root
+
+    extra = choices.get("algo_for_obs")
+    if extra and (conf_root() / "algo_for_obs" / f"{extra}.yaml").is_file():
+        return f"algo={choices.get('algo')} with the image preset's settings (conf/algo_for_obs/{extra}.yaml)"
+    return f"algo={choices.get('algo')}"
+
+
 def main():
+    import sys
+
     from cathsim_dmc.cli._common import run_hydra
     from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.tasks import TARGETS, aorta_choices
 
+    sys.argv[1:] = explicit_algo(resume_in_place(sys.argv[1:]))
     run_hydra(run, "train", {
         "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
         "algo": _group_choices("algo"), "reward": _group_choices("reward"), "demos": _group_choices("demos"),

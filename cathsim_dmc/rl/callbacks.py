@@ -8,6 +8,8 @@ with what differs here overridden; each override says why.
 from __future__ import annotations
 
 import contextlib
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -78,6 +80,9 @@ class Checkpoints(CheckpointCallback):
     step_<n>.zip and last.zip, each with its observation normaliser, and optionally the
     replay buffer (`cathsim_dmc.rl.checkpoints.save_checkpoint`).
 
+    Ctrl-C (SIGINT) during training is held until the step in progress is stored, then
+    the model is checkpointed and KeyboardInterrupt raised; a second Ctrl-C stops at once.
+
     :param save_freq: environment steps between checkpoints (0: none during training)
     :param save_path: the run's checkpoint folder
     :param save_replay_buffer: also save the replay buffer with each checkpoint
@@ -88,9 +93,28 @@ class Checkpoints(CheckpointCallback):
         super().__init__(int(save_freq), Path(save_path), save_replay_buffer=bool(save_replay_buffer),
                          save_vecnormalize=True)
         self._last_saved = 0
+        self._stop_requested = False
+        self._previous_handler = None
 
     def _on_training_start(self) -> None:
         self._last_saved = self.num_timesteps
+        self._stop_requested = False
+        if threading.current_thread() is threading.main_thread():  # only there can Python take signals
+            self._previous_handler = signal.signal(signal.SIGINT, self._request_stop)
+
+    def _request_stop(self, signum, frame) -> None:
+        if self._stop_requested:  # the second Ctrl-C
+            self._restore_handler()
+            raise KeyboardInterrupt
+        self._stop_requested = True
+
+    def _restore_handler(self) -> None:
+        if self._previous_handler is not None:
+            signal.signal(signal.SIGINT, self._previous_handler)
+            self._previous_handler = None
+
+    def _on_training_end(self) -> None:
+        self._restore_handler()
 
     def _on_step(self) -> bool:
         # SB3 saves here, every save_freq calls; see _on_rollout_end.
@@ -102,9 +126,12 @@ class Checkpoints(CheckpointCallback):
         # Counted in environment steps since the last checkpoint (SB3 counts calls, which
         # restart at a resume and advance n_envs steps each). The files form one unit
         # that a resume can trust (save_checkpoint), not SB3's three independent names.
-        if self.save_freq > 0 and self.num_timesteps - self._last_saved >= self.save_freq:
+        if self._stop_requested or self.save_freq > 0 and self.num_timesteps - self._last_saved >= self.save_freq:
             self._last_saved = self.num_timesteps
             save_checkpoint(self.model, self.save_path, self.save_replay_buffer)
+        if self._stop_requested:
+            self._restore_handler()
+            raise KeyboardInterrupt
 
 
 class PeriodicEvaluation(EvalCallback):

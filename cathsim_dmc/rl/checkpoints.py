@@ -30,6 +30,16 @@ FINAL_MODEL = "final_model.zip"
 BEST_MODEL = "best.zip"  # the checkpoint with the best periodic deterministic evaluation
 BEST_RECORD = "best.json"
 EVALUATIONS = "evaluations.jsonl"  # one line per periodic evaluation: step, success rate, return, wall time
+CHECKPOINT_EVERY_WITHOUT_EVALUATION = 1000  # steps: trainer.checkpoint_every=null with trainer.eval_every=0
+
+
+def checkpoint_interval(trainer: dict) -> int:
+    """Environment steps between checkpoints: trainer["checkpoint_every"], or when it is
+    None the periodic evaluation's eval_every (CHECKPOINT_EVERY_WITHOUT_EVALUATION without
+    one). 0: only at the end of the run."""
+    if trainer.get("checkpoint_every") is not None:
+        return int(trainer["checkpoint_every"])
+    return int(trainer.get("eval_every") or 0) or CHECKPOINT_EVERY_WITHOUT_EVALUATION
 
 
 def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_options: dict | None = None,

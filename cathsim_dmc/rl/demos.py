@@ -92,16 +92,18 @@ class Transitions:
         return len(self.actions)
 
 
-def expert_transitions(env, episodes: int, seed: int = 0, policy=None) -> Transitions:
+def expert_transitions(env, episodes: int, seed: int = 0, policy=None, progress: str | None = None) -> Transitions:
     """Roll out the scripted expert (or `policy(observation, env)`) in `env`, a `CathSimEnv`
-    built like the training environment, for `episodes` episodes seeded `seed`, `seed + 1`..."""
+    built like the training environment, for `episodes` episodes seeded `seed`, `seed + 1`...
+    `progress` labels a progress bar over the episodes (None: none)."""
     from cathsim_dmc.experts import CenterlineExpert
 
     policy = policy or CenterlineExpert()
-    return _rollouts(env, episodes, seed, lambda: (lambda obs, env, step: (policy(obs, env), True)))
+    return _rollouts(env, episodes, seed, lambda: (lambda obs, env, step: (policy(obs, env), True)), progress)
 
 
-def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200) -> Transitions:
+def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200,
+                         progress: str | None = None) -> Transitions:
     """Demonstrations from where the student goes: in each episode `student(observation)`
     drives for a random number of steps (0 to `max_student_steps`, drawn from `seed`), then
     the scripted expert takes over to the end of the episode. The expert's part is returned.
@@ -111,7 +113,7 @@ def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student
     start never visit, each with the expert's action, reward and next state, so that the
     critic can learn from them as well as the behavioural-cloning term. The student's part
     is not returned (`Transitions.episodes` counts every episode; the environment steps of
-    both parts are in `Transitions.steps_taken`).
+    both parts are in `Transitions.steps_taken`). `progress` labels a progress bar (None: none).
     """
     from cathsim_dmc.experts import CenterlineExpert
 
@@ -130,15 +132,17 @@ def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student
 
         return act
 
-    return _rollouts(env, episodes, seed, episode_policy)
+    return _rollouts(env, episodes, seed, episode_policy, progress)
 
 
-def _rollouts(env, episodes: int, seed: int, make_policy) -> Transitions:
+def _rollouts(env, episodes: int, seed: int, make_policy, progress: str | None = None) -> Transitions:
     """Run `episodes` episodes (seeds `seed`, `seed + 1`, ...); `make_policy()` gives each
     episode's `act(observation, env, step) -> (action, record)`. Returns the recorded steps."""
+    from tqdm import tqdm
+
     rows = {k: [] for k in ("obs", "next_obs", "action", "reward", "terminated", "truncated")}
     successes = steps_taken = 0
-    for episode in range(int(episodes)):
+    for episode in tqdm(range(int(episodes)), desc=progress, unit="episode", disable=progress is None):
         obs, info = env.reset(seed=seed + episode)
         act, done, step = make_policy(), False, 0
         while not done:

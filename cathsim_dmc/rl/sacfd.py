@@ -22,18 +22,26 @@ from cathsim_dmc.checks import check_number
 from cathsim_dmc.rl.demos import DemoReplayBuffer
 
 
-def pretrain_actor(model, steps: int, batch_size: int | None = None) -> float:
+def _steps(steps: int, progress: str | None):
+    """range(steps), shown as a tqdm bar labelled `progress` (None: no bar)."""
+    from tqdm import tqdm
+
+    return tqdm(range(int(steps)), desc=progress, unit="update", mininterval=2.0, disable=progress is None)
+
+
+def pretrain_actor(model, steps: int, batch_size: int | None = None, progress: str | None = None) -> float:
     """Behavioural cloning of the SAC actor on the demonstrations; returns the last loss.
 
     The loss is the squared error of the actor's deterministic action (tanh of the mean)
     against the expert's action; the log standard deviation is left to SAC's entropy term.
+    `progress` labels a progress bar (None: none).
     """
     buffer = model.replay_buffer
     batch_size = int(batch_size or model.batch_size)
     actor = model.actor
     actor.set_training_mode(True)
     loss_value = float("nan")
-    for _ in range(int(steps)):
+    for _ in _steps(steps, progress):
         data = buffer.demos.sample(batch_size, env=model._vec_normalize_env)
         mean, _, _ = actor.get_action_dist_params(data.observations)
         loss = torch.nn.functional.mse_loss(torch.tanh(mean), data.actions)
@@ -45,18 +53,19 @@ def pretrain_actor(model, steps: int, batch_size: int | None = None) -> float:
     return loss_value
 
 
-def warm_up_critic(model, steps: int, batch_size: int | None = None) -> float:
+def warm_up_critic(model, steps: int, batch_size: int | None = None, progress: str | None = None) -> float:
     """Critic-only SAC updates on the mixed buffer, the actor held fixed; returns the last loss.
 
     A critic trained against a pre-trained actor starts the actor's updates from values
     that already favour the expert's actions, instead of undoing the pre-training.
+    `progress` labels a progress bar (None: none).
     """
     batch_size = int(batch_size or model.batch_size)
     ent_coef = (torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None
                 else model.ent_coef_tensor)
     model.critic.set_training_mode(True)
     loss_value = float("nan")
-    for _ in range(int(steps)):
+    for _ in _steps(steps, progress):
         data = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
         loss = _critic_step(model, data, ent_coef)
         polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)

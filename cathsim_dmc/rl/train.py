@@ -15,8 +15,8 @@ from pathlib import Path
 from cathsim_dmc import run_files
 from cathsim_dmc.config import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
-                                        checkpoint_step, resume_checkpoint, save_checkpoint, save_model,
-                                        write_policy_file)
+                                        checkpoint_interval, checkpoint_step, resume_checkpoint, save_checkpoint,
+                                        save_model, write_policy_file)
 from cathsim_dmc.rl.replay import check_replay_memory, grow_replay_buffer
 
 log = logging.getLogger("cathsim-train")
@@ -27,10 +27,15 @@ def make_env_fn(task: str, aorta: str, obs: str, seed: int, task_kwargs: dict):
     """A picklable constructor for vector envs (each subprocess builds its own env)."""
 
     def build():
+        import multiprocessing
+        import signal
+
         from stable_baselines3.common.monitor import Monitor
 
         from cathsim_dmc.gym import CathSimEnv
 
+        if multiprocessing.parent_process() is not None:  # a SubprocVecEnv worker: Ctrl-C is the trainer's
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         env = CathSimEnv(task=task, aorta=aorta, obs=obs, **task_kwargs)
         env.reset(seed=seed)
         return Monitor(env, info_keywords=("success",))
@@ -131,9 +136,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     the built-in ones (episode statistics, checkpoints, periodic evaluation, progress bar).
     """
     import torch
-    from stable_baselines3.common.callbacks import CallbackList
 
-    from cathsim_dmc.rl.callbacks import Checkpoints, EpisodeStats, PeriodicEvaluation, Progress
     from cathsim_dmc.rl.sacfd import SACfD
 
     # Options a Python caller leaves out take the schema's defaults (cathsim_dmc.config).
@@ -157,6 +160,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     ckpt_dir = run_dir / CHECKPOINT_DIR
     if resume:
         last, step, buffer_file = resume_checkpoint(ckpt_dir)
+        log.info("resuming from step %d of %d (%s)", step, total, last)
     if trainer.get("normalize_observations"):
         # The normaliser of step_<n>.zip, written before last.zip, is the one that matches it.
         env = normalize_observations(env, ckpt_dir / f"step_{step}.zip" if resume else None)
@@ -176,12 +180,42 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         model = build_sac(env, algo, seed, trainer["device"], tb_dir, demos if _use_demos(demos) else None)
         write_policy_file(run_dir, obs, task, aorta, image_options, env_options,
                           bool(trainer.get("normalize_observations")))
+    start_steps = model.num_timesteps
+    try:
+        seconds = _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, make_demo_env, callbacks)
+    except KeyboardInterrupt:
+        raise run_files.Interrupted(_interrupted(run_dir, total)) from None
+    last = ckpt_dir / LAST_CHECKPOINT
+    if not last.is_file() or checkpoint_step(last) != model.num_timesteps:  # not saved at this step already
+        save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
+    save_model(model, run_dir / FINAL_MODEL)
+    return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
+
+
+def _interrupted(run_dir: Path, total: int) -> str:
+    """What a Ctrl-C'd run kept, and how to continue it."""
+    last = run_dir / CHECKPOINT_DIR / LAST_CHECKPOINT
+    if not last.is_file():
+        return f"training stopped before its first checkpoint; nothing to resume in {run_dir}: start it again"
+    return (f"training stopped; checkpoint at step {checkpoint_step(last)} of {total} kept in {last}; "
+            f"continue with: cathsim-train resume={run_dir}")
+
+
+def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, make_demo_env, callbacks) -> float:
+    """`train`'s work after the model exists: the demonstrations, then SAC to the budget;
+    returns the wall seconds of the SAC part."""
+    from stable_baselines3.common.callbacks import CallbackList
+
+    from cathsim_dmc.rl.callbacks import Checkpoints, EpisodeStats, PeriodicEvaluation, Progress
+
     if _use_demos(demos):
-        load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume)
-    start_steps, t0 = model.num_timesteps, time.perf_counter()
-    remaining = total - model.num_timesteps
+        load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume,
+                            show_progress=trainer["progress_bar"])
+    total, ckpt_dir = int(trainer["total_timesteps"]), run_dir / CHECKPOINT_DIR
+    t0, remaining = time.perf_counter(), total - model.num_timesteps
     if remaining > 0:
-        built_in = [EpisodeStats(), Checkpoints(trainer["checkpoint_every"], ckpt_dir, trainer["save_replay_buffer"])]
+        built_in = [EpisodeStats(),
+                    Checkpoints(checkpoint_interval(trainer), ckpt_dir, trainer["save_replay_buffer"])]
         if trainer["eval_every"] > 0 and make_eval_env is not None:
             # Selection episodes are seeded apart from the final report's (10_000 + seed), so
             # the report is not scored on the episodes the best checkpoint was chosen on, and
@@ -192,12 +226,7 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
             built_in.append(Progress(total))
         model.learn(total_timesteps=remaining, callback=CallbackList([*built_in, *(callbacks or [])]),
                     log_interval=1, tb_log_name="sac", reset_num_timesteps=not resume)
-    seconds = time.perf_counter() - t0
-    last = ckpt_dir / LAST_CHECKPOINT
-    if not last.is_file() or checkpoint_step(last) != model.num_timesteps:  # not saved at this step already
-        save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
-    save_model(model, run_dir / FINAL_MODEL)
-    return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
+    return time.perf_counter() - t0
 
 
 # -- demonstrations ----------------------------------------------------------------
@@ -205,7 +234,7 @@ def _use_demos(demos: dict | None) -> bool:
     return bool(demos) and int(demos["episodes"]) > 0
 
 
-def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
+def _takeover_rounds(model, demos: dict, make_demo_env, seed: int, show_progress: bool = False) -> None:
     """`demos["takeover_rounds"]` rounds: takeover demonstrations of the current actor
     (`rl.demos.takeover_transitions`) join the demonstrations, then the actor is
     re-trained on them for half of `pretrain_actor_steps`."""
@@ -214,14 +243,17 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
     from cathsim_dmc.rl.sacfd import pretrain_actor
 
     env, student = make_demo_env(), deterministic_policy(model)
+    label = lambda text: text if show_progress else None  # noqa: E731  (a bar's label, or no bar)
     try:
         for round_index in range(int(demos["takeover_rounds"])):
             t0 = time.perf_counter()
             transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
                                                seed=40_000 + 1000 * seed + 100 * round_index,
-                                               max_student_steps=int(demos["takeover_max_student_steps"]))
+                                               max_student_steps=int(demos["takeover_max_student_steps"]),
+                                               progress=label(f"takeover round {round_index + 1}"))
             add_transitions(model.replay_buffer, transitions)
-            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]) // 2)
+            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]) // 2,
+                                  progress=label(f"round {round_index + 1}: re-training the actor"))
             log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
                      "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
                      transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
@@ -230,15 +262,18 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int) -> None:
         env.close()
 
 
-def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True) -> None:
+def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True,
+                        show_progress: bool = False) -> None:
     """Record the expert's episodes (or read them from `demos["path"]`) into the model's
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
-    them; each stage is logged with its size, loss and time."""
+    them; each stage is logged with its size, loss and time, and with `show_progress`
+    shows a progress bar while it runs."""
     from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, dataset_transitions, expert_transitions
     from cathsim_dmc.rl.sacfd import pretrain_actor, warm_up_critic
 
     demos = with_defaults(DemosConfig, demos)
     buffer = model.replay_buffer
+    label = lambda text: text if show_progress else None  # noqa: E731  (a bar's label, or no bar)
     if not isinstance(buffer, DemoReplayBuffer):
         raise ValueError("this run was started without demonstrations; resume it without demos.episodes")
     if buffer.demos.size() == 0:
@@ -252,7 +287,8 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
                                                   int(demos["episodes"]))
             else:
                 # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
-                transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed)
+                transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed,
+                                                 progress=label("recording demonstrations"))
         finally:
             env.close()
         add_transitions(buffer, transitions)
@@ -264,11 +300,11 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
                  transitions.episodes, transitions.successes, len(transitions), time.perf_counter() - t0)
     if pretrain:
         if int(demos["pretrain_actor_steps"]) > 0:
-            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]))
+            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]), progress=label("pre-training the actor"))
             log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
                      int(demos["pretrain_actor_steps"]), loss)
         if int(demos["takeover_rounds"]) > 0:
-            _takeover_rounds(model, demos, make_demo_env, seed)
+            _takeover_rounds(model, demos, make_demo_env, seed, show_progress)
         if int(demos["critic_warmup_steps"]) > 0:
-            loss = warm_up_critic(model, int(demos["critic_warmup_steps"]))
+            loss = warm_up_critic(model, int(demos["critic_warmup_steps"]), progress=label("warming up the critic"))
             log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)
