@@ -34,7 +34,7 @@ def _one_line(result) -> str:
     (["demos.bc_filter=q"], "unknown option demos.bc_filter"),  # removed
     (["trainer.total_timesteps=abc"], "trainer.total_timesteps='abc'"),
     (["trainer.total_timesteps=5.5"], "trainer.total_timesteps=5.5"),
-    (["algo.buffer_size=1e12"], "algo.buffer_size=1000000000000.0"),
+    (["algo.buffer_size=1e12"], "algo.buffer_size=1e+12 is written as a decimal number; an integer is needed: write 1000000000000"),
 ])
 def test_a_misspelled_key_or_a_wrong_type_fails_at_composition_in_one_line(args, expected, tmp_path):
     run = tmp_path / "run"
