@@ -18,6 +18,7 @@ translates their config.yaml (see there).
 """
 
 import logging
+from pathlib import Path
 from dataclasses import MISSING as NO_DEFAULT
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, List, Mapping, Optional
@@ -265,6 +266,9 @@ def validate(cfg, tool: str = "train") -> None:
     for name, section in _sections(schema).items():
         if cfg.get(name) is not None:
             check_section(name, section, cfg[name])
+    demos = cfg.get("demos")
+    if demos is not None and demos.get("path") and not Path(str(demos.path)).exists():
+        raise ValueError(f"demos.path={str(demos.path)!r} does not exist; give a cathsim-collect dataset folder")
     trainer = cfg.get("trainer")
     if trainer is not None and str(trainer.get("device", "")).startswith("cuda"):
         check_cuda(f"trainer.device={trainer.device!r}")
