@@ -201,6 +201,10 @@ def check_section(name: str, schema, values: Mapping) -> None:
             continue
         value, check = values[spec.name], spec.metadata
         key = f"{name}.{spec.name}" if name else spec.name
+        if check.get("folder"):  # an output folder: an existing file there would fail late
+            if value is not None and Path(str(value)).exists() and not Path(str(value)).is_dir():
+                raise ValueError(f"{key}={str(value)!r} is a file; give a folder (new or existing)")
+            continue
         if value is None and type(None) in getattr(spec.type, "__args__", ()):
             continue  # an Optional option, off
         # a list option checks each item

@@ -17,6 +17,11 @@ IMAGE_KEYS = ("pixels", "guidewire_mask")  # the image a student (bc) or force n
 FORCE_LABELS = ("mean_contact_force_n", "contact_force_n")
 
 
+def _folder():
+    """An output folder's option: an existing file there is refused."""
+    return field(default=MISSING, metadata={"folder": True})
+
+
 def _set(minimum=None, **check):
     """A ranged option whose default is its tool's YAML file's."""
     return _number(MISSING, minimum=minimum, **check)
@@ -50,7 +55,7 @@ class CollectConfig:
     episodes_per_shard: int = _set(1, whole=True)
     seed: int = _set(0, whole=True)
     action_noise_std: float = _set(0.0)
-    out: Optional[str] = MISSING
+    out: Optional[str] = _folder()
     progress_bar: bool = MISSING
 
 
@@ -137,7 +142,7 @@ class ExportConfig:
 
     task: TaskConfig = MISSING
     aorta: Any = MISSING
-    out: str = MISSING
+    out: str = _folder()
     seed: int = _set(0, whole=True)
     overwrite: bool = MISSING
 

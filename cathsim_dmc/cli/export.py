@@ -18,8 +18,6 @@ def export(cfg) -> Path:
     from cathsim_dmc.export import SCENE_FILE, export_scene
 
     out = Path(str(cfg.out))
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"out={str(cfg.out)!r} is a file; give a folder for scene.xml and meshes/")
     if (out / SCENE_FILE).exists() and not cfg.overwrite:
         raise ValueError(f"{out / SCENE_FILE} exists; pass overwrite=true to replace it")
     env = tasks.load(**env_kwargs(cfg), seed=cfg.seed)
