@@ -227,3 +227,19 @@ def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(t
     warnings = [line for line in (again.stdout + again.stderr).splitlines() if "dropped options" in line]
     assert len(warnings) == 1 and "demos.bc_filter" in warnings[0] and "trainer.confirm_episodes" in warnings[0]
     assert (run / "checkpoints" / "step_30.zip").is_file() or (run / "checkpoints" / "last.zip").is_file()
+
+
+def test_the_image_keys_the_schema_accepts_are_the_students():
+    from cathsim_dmc import config_tools
+    from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE
+
+    assert set(config_tools.IMAGE_KEYS) == set(PRESET_FOR_IMAGE)
+
+
+@pytest.mark.parametrize("tool", ["eval", "collect", "bc", "force", "bench", "export"])
+def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
+    from cathsim_dmc.config_tools import TOOL_SCHEMAS
+
+    cfg = OmegaConf.create(_compose(tool))
+    config.validate(cfg, tool)
+    assert set(cfg) - {"hydra"} == {spec.name for spec in dataclasses.fields(TOOL_SCHEMAS[tool])}
