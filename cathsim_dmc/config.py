@@ -275,20 +275,20 @@ def validate(cfg, tool: str = "train") -> None:
         raise ValueError(f"demos.path={str(demos.path)!r} does not exist; give a cathsim-collect dataset folder")
     trainer = cfg.get("trainer")
     if trainer is not None and str(trainer.get("device", "")).startswith("cuda"):
-        check_cuda(f"trainer.device={trainer.device!r}")
+        check_cuda("trainer.device", str(trainer.device))
 
 
-def check_cuda(setting: str) -> None:
-    """ValueError naming `setting` (a CUDA device) on a machine where torch sees no such GPU:
-    training would otherwise fail late, or (device=auto's fallback) run on the CPU unasked."""
+def check_cuda(key: str, device: str) -> None:
+    """ValueError naming `key=device` (cuda or cuda:<index>) unless torch sees that GPU:
+    training would otherwise fail late or, with device=auto's fallback, run on the CPU unasked."""
     import torch
 
-    name = setting.rpartition("=")[2].strip("'")
-    index = int(name.partition(":")[2] or 0) if name.partition(":")[2].isdigit() or ":" not in name else -1
     if not torch.cuda.is_available():
-        raise ValueError(f"{setting}, but torch sees no CUDA GPU on this machine; choose trainer.device=cpu or auto")
-    if not 0 <= index < torch.cuda.device_count():
-        raise ValueError(f"{setting}: choose cuda or cuda:<index> below {torch.cuda.device_count()}")
+        raise ValueError(f"{key}={device!r}, but torch sees no CUDA GPU on this machine; choose cpu or auto")
+    count, index = torch.cuda.device_count(), device.partition(":")[2]
+    if index and not (index.isdigit() and int(index) < count):
+        raise ValueError(f"{key}={device!r}: this machine has {count} CUDA GPU(s); choose cuda or cuda:0 to "
+                         f"cuda:{count - 1}")
 
 
 # --- run folders written by older versions ----------------------------------------------

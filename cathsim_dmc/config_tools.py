@@ -14,6 +14,8 @@ from cathsim_dmc.config import MISSING, TaskConfig, TrainConfig, _number
 
 VIDEO_FORMATS = ("gif", "mp4")
 IMAGE_KEYS = ("pixels", "guidewire_mask")  # the image a student (bc) or force network sees
+# What cathsim-force's network predicts: the total contact force averaged over the control
+# step's physics steps, or the total at its last physics step (spiky: contacts chatter).
 FORCE_LABELS = ("mean_contact_force_n", "contact_force_n")
 
 
