@@ -69,8 +69,8 @@ def run(cfg) -> dict:
     (run_dir / "force.md").write_text(table)
     for r in report["sizes"]:
         if r["train_samples"] < r["size_requested"]:
-            log.warning("force.sizes asked for %d samples; the training episodes hold %d, all used", r["size_requested"],
-                        r["train_samples"])
+            log.warning("force.sizes asked for %d samples; the training episodes hold %d, all used",
+                        r["size_requested"], r["train_samples"])
         log.info("%d samples: %d updates in %.0f s (%.1f s per epoch per 10K samples)", r["train_samples"],
                  r["updates"], r["seconds"], r["seconds"] / r["epochs"] * 10_000 / max(r["fit_samples"], 1))
     print(table, end="")
