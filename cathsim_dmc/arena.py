@@ -36,6 +36,8 @@ class OperatingArena(composer.Arena):
             is small against its stiffness and wall contact (the tip path after 30 full
             insertion steps moved by < 0.01 mm); off by default.
         """
+        if not isinstance(blood_drag, (bool, np.bool_)):  # -1 or "yes" would read as on
+            raise ValueError(f"blood_drag={blood_drag!r} must be True or False")
         super()._build(name=name)
         root = self._mjcf_root
         root.compiler.angle = "radian"

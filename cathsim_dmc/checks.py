@@ -39,3 +39,14 @@ def available_memory_bytes() -> int:
     except OSError:
         pass
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+
+
+def check_parameters(owner: str, positive: dict = None, non_negative: dict = None, finite: dict = None) -> None:
+    """ValueError naming `owner key=value` unless every value (or each item of a tuple) of
+    `positive` is > 0, of `non_negative` >= 0 and of `finite` a finite number; None passes.
+    An entity checks its parameters with it at construction: NaN compiles into a model
+    whose every step is non-finite."""
+    for minimum, inclusive, values in ((0.0, False, positive), (0.0, True, non_negative), (None, True, finite)):
+        for key, value in (values or {}).items():
+            for item in value if isinstance(value, (tuple, list)) else () if value is None else (value,):
+                check_number(f"{owner} {key}", item, minimum, inclusive=inclusive)

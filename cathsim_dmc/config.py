@@ -10,13 +10,17 @@ a value of the wrong type (`trainer.total_timesteps=abc`); `validate` checks the
 Registering (`register_schemas`) must precede composing conf/: the tools do it in
 cathsim_dmc.cli._common. Importing this module needs neither dm_control, MuJoCo nor torch.
 
+The other tools (cathsim-eval, -collect, -bc, -force, -bench, -export) have a schema each
+too, in cathsim_dmc/config_tools.py (`tool_schemas()`); `validate(cfg, tool)` checks any of them.
+
 Run folders written before an option was removed or moved still resume: `upgrade_saved_config`
 translates their config.yaml (see there).
 """
 
 import logging
+from pathlib import Path
 from dataclasses import MISSING as NO_DEFAULT
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, List, Mapping, Optional
 
 log = logging.getLogger(__name__)
@@ -28,10 +32,11 @@ FINAL_POLICIES = ("best", "last")
 EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 
 
-def _number(default, minimum=None, maximum=None, above=None, whole=False, choices=None):
-    """A dataclass field with its range: >= `minimum`, > `above`, <= `maximum`, an int if
-    `whole`, or one of `choices` (strings). None as a default means the option may be off."""
-    check = {"minimum": minimum, "maximum": maximum, "above": above, "whole": whole, "choices": choices}
+def _number(default, minimum=None, maximum=None, above=None, whole=False, choices=None, below=None):
+    """A dataclass field with its range: >= `minimum`, > `above`, <= `maximum`, < `below`,
+    an int if `whole`, or one of `choices` (strings). None as a default means the option may be off."""
+    check = {"minimum": minimum, "maximum": maximum, "above": above, "whole": whole, "choices": choices,
+             "below": below}
     if isinstance(default, list):
         return field(default_factory=lambda: list(default), metadata=check)
     return field(default=default, metadata=check)
@@ -170,6 +175,13 @@ GROUP_SCHEMAS = {"task": TaskConfig, "algo": AlgoConfig, "demos": DemosConfig}
 TRAIN_SCHEMA = "train_schema"  # conf/train.yaml's first default
 
 
+def tool_schemas() -> dict:
+    """Each tool's schema: {"train": TrainConfig, "eval": EvalConfig, ...}."""
+    from cathsim_dmc.config_tools import TOOL_SCHEMAS
+
+    return TOOL_SCHEMAS
+
+
 def register_schemas() -> None:
     """Put the schemas in Hydra's ConfigStore (idempotent). Composing conf/ needs them."""
     from hydra.core.config_store import ConfigStore
@@ -177,7 +189,8 @@ def register_schemas() -> None:
     store = ConfigStore.instance()
     for group, schema in GROUP_SCHEMAS.items():
         store.store(group=group, name=SCHEMA, node=schema)
-    store.store(name=TRAIN_SCHEMA, node=TrainConfig)
+    for tool, schema in tool_schemas().items():  # conf/<tool>.yaml's first default: <tool>_schema
+        store.store(name=f"{tool}_schema", node=schema)
 
 
 # --- ranges ---------------------------------------------------------------------------
@@ -188,18 +201,25 @@ TRAIN_SECTIONS = {"trainer": TrainerConfig, "algo": AlgoConfig, "demos": DemosCo
 
 def check_section(name: str, schema, values: Mapping) -> None:
     """ValueError naming `name.key=value` for the first value of `values` (a dict or a
-    DictConfig) outside its range in `schema`. Keys `values` lacks are not checked: a
-    Python caller may pass only the options it sets."""
+    DictConfig) outside its range in `schema` (`name` "": the top level). Keys `values`
+    lacks are not checked: a Python caller may pass only the options it sets."""
+    from collections.abc import Sequence
+
     from cathsim_dmc.checks import check_number
 
     for spec in fields(schema):
         if not spec.metadata or spec.name not in values:
             continue
-        value, check, key = values[spec.name], spec.metadata, f"{name}.{spec.name}"
+        value, check = values[spec.name], spec.metadata
+        key = f"{name}.{spec.name}" if name else spec.name
+        if check.get("folder"):  # an output folder: an existing file there would fail late
+            if value is not None and Path(str(value)).exists() and not Path(str(value)).is_dir():
+                raise ValueError(f"{key}={str(value)!r} is a file; give a folder (new or existing)")
+            continue
         if value is None and type(None) in getattr(spec.type, "__args__", ()):
             continue  # an Optional option, off
-        # a list option (default_factory) checks each item
-        items = list(value) if spec.default is NO_DEFAULT and not isinstance(value, (str, bytes)) else [value]
+        # a list option checks each item
+        items = list(value) if isinstance(value, Sequence) and not isinstance(value, str) else [value]
         if check["choices"] is not None:
             for item in items:
                 if str(item) not in check["choices"] and not (key == "trainer.device" and str(item).startswith("cuda:")):
@@ -211,6 +231,10 @@ def check_section(name: str, schema, values: Mapping) -> None:
             number = check_number(key, item, check["minimum"], whole=check["whole"])
             if check["maximum"] is not None and not number <= check["maximum"]:
                 raise ValueError(f"{key}={item!r} must lie in [{check['minimum']:g}, {check['maximum']:g}]")
+            if check.get("below") is not None and not number < check["below"]:
+                low = check["minimum"] if check["minimum"] is not None else check["above"]
+                raise ValueError(f"{key}={item!r} must lie in {'[' if check['minimum'] is not None else '('}"
+                                 f"{low:g}, {check['below']:g})")
 
 
 def with_defaults(schema, values: Mapping | None) -> dict:
@@ -221,15 +245,21 @@ def with_defaults(schema, values: Mapping | None) -> dict:
     return {**defaults, **dict(values or {})}
 
 
-def check_known_keys(cfg, train: bool = True) -> None:
+def _sections(schema) -> dict:
+    """A tool schema's typed sections: name -> dataclass."""
+    return {spec.name: spec.type for spec in fields(schema) if is_dataclass(spec.type)}
+
+
+def check_known_keys(cfg, tool: str | None = "train") -> None:
     """ValueError naming the first key no schema knows. Composition already refuses one
     set as `key=value`; Hydra's `+key=value` adds it past the schema, and a config it
-    composed would then ignore it silently. `train`: cfg is cathsim-train's whole config
-    (its top level and every typed section are checked; otherwise only the typed groups)."""
-    sections = {**GROUP_SCHEMAS, **TRAIN_SECTIONS} if train else GROUP_SCHEMAS
-    known = {name: {spec.name for spec in fields(schema)} for name, schema in sections.items()}
-    if train:
-        known[""] = {spec.name for spec in fields(TrainConfig)} | {"hydra"}
+    composed would then ignore it silently. `tool`: whose whole config cfg is (its top
+    level and every typed section are checked); None: only the typed groups."""
+    schema = tool_schemas().get(tool)
+    sections = {**GROUP_SCHEMAS, **(_sections(schema) if schema else {})}
+    known = {name: {spec.name for spec in fields(section)} for name, section in sections.items()}
+    if schema:
+        known[""] = {spec.name for spec in fields(schema)} | {"hydra"}
     for section, names in known.items():
         node = cfg if not section else cfg.get(section)
         if node is None:
@@ -237,21 +267,39 @@ def check_known_keys(cfg, train: bool = True) -> None:
         unknown = sorted(set(node.keys()) - names)
         if unknown:
             key = f"{section}.{unknown[0]}" if section else unknown[0]
-            raise ValueError(f"unknown option {key}: not in {sections[section].__name__ if section else 'TrainConfig'} "
+            raise ValueError(f"unknown option {key}: not in {(sections[section] if section else schema).__name__} "
                              f"(cathsim_dmc/config.py)")
 
 
-def validate(cfg) -> None:
-    """Every key and range of a composed cathsim-train config (sections it lacks are
-    skipped): ValueError naming the first unknown key or value out of range. Types were
-    checked when it was composed."""
-    from cathsim_dmc.checks import check_number
-
-    check_known_keys(cfg)
-    check_number("seed", cfg["seed"], 0, whole=True)
-    for name, schema in TRAIN_SECTIONS.items():
+def validate(cfg, tool: str = "train") -> None:
+    """Every key and range of a composed config of `tool` (cathsim-<tool>; sections it
+    lacks are skipped): ValueError naming the first unknown key or value out of range.
+    Types were checked when it was composed."""
+    check_known_keys(cfg, tool)
+    schema = tool_schemas()[tool]
+    check_section("", schema, cfg)
+    for name, section in _sections(schema).items():
         if cfg.get(name) is not None:
-            check_section(name, schema, cfg[name])
+            check_section(name, section, cfg[name])
+    demos = cfg.get("demos")
+    if demos is not None and demos.get("path") and not Path(str(demos.path)).exists():
+        raise ValueError(f"demos.path={str(demos.path)!r} does not exist; give a cathsim-collect dataset folder")
+    trainer = cfg.get("trainer")
+    if trainer is not None and str(trainer.get("device", "")).startswith("cuda"):
+        check_cuda("trainer.device", str(trainer.device))
+
+
+def check_cuda(key: str, device: str) -> None:
+    """ValueError naming `key=device` (cuda or cuda:<index>) unless torch sees that GPU:
+    training would otherwise fail late or, with device=auto's fallback, run on the CPU unasked."""
+    import torch
+
+    if not torch.cuda.is_available():
+        raise ValueError(f"{key}={device!r}, but torch sees no CUDA GPU on this machine; choose cpu or auto")
+    count, index = torch.cuda.device_count(), device.partition(":")[2]
+    if index and not (index.isdigit() and int(index) < count):
+        raise ValueError(f"{key}={device!r}: this machine has {count} CUDA GPU(s); choose cuda or cuda:0 to "
+                         f"cuda:{count - 1}")
 
 
 # --- run folders written by older versions ----------------------------------------------

@@ -128,4 +128,8 @@ def _space(key, spec):
         h, w, c = spec.shape
         return spaces.Box(0, 255, shape=(c, h, w), dtype=np.uint8)
     shape = spec.shape if spec.shape else (1,)
+    # Unbounded on purpose (Gymnasium's checker warns about it): joint_pos holds the robot's
+    # rotation, an unlimited hinge whose angle (rad) grows with every turn, and joint_vel
+    # rates that a stiff wall contact or a diverging step can drive to any value; a finite
+    # bound would be a claim the simulation does not keep.
     return spaces.Box(-np.inf, np.inf, shape=shape, dtype=np.float32)

@@ -50,6 +50,7 @@ Version 2 added `optimal_path_length_m` (for SPL), `policy` and `obs_<key>`.
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -176,8 +177,12 @@ def load_trajectories(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no trajectory file at {path}")
-    with np.load(path, allow_pickle=False) as data:
-        arrays = {key: data[key] for key in data.files}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    # a CSV or a pickle (ValueError), a truncated file, one .npy array (no context manager)
+    except (OSError, ValueError, EOFError, TypeError, AttributeError, zipfile.BadZipFile):
+        raise ValueError(f"{path} is not a trajectory file (the trajectories.npz cathsim-eval writes)") from None
     version = int(arrays.get("schema_version", -1))
     if version != SCHEMA_VERSION:
         raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")

@@ -46,6 +46,24 @@ def validate(task: str, aorta: str, obs: str = "internal") -> None:
         raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
 
 
+def check_keywords(what: str, given, accepts, supplied=()) -> None:
+    """ValueError listing the valid names if `given` (keyword arguments) holds one that
+    the callables `accepts` do not take (or that the caller `supplied` itself)."""
+    import inspect
+
+    valid = sorted({name for function in accepts for name, p in inspect.signature(function).parameters.items()
+                    if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)} - {"self", *supplied})
+    unknown = sorted(set(given or ()) - set(valid))
+    if unknown:
+        raise ValueError(f"{what}: unknown keyword argument{'s' if len(unknown) > 1 else ''} "
+                         f"{', '.join(map(repr, unknown))}; valid: {', '.join(valid)}")
+
+
+# What build_task passes to Navigate and the entities itself.
+_SUPPLIED = {Navigate.__init__: ("aorta", "guidewire", "robot", "target", "observations"),
+             FollowerRobot._build: ("name",), Guidewire._build: ("name",), Aorta._build: ("asset", "name")}
+
+
 def build_task(
     task: str = "bca",
     aorta: str = "type1",
@@ -73,6 +91,10 @@ def build_task(
     """
     validate(task, aorta, obs)
     check_options(**task_kwargs)
+    check_keywords("tasks.load", task_kwargs, [build_task, Navigate.__init__], _SUPPLIED[Navigate.__init__])
+    for what, given, entity in (("guidewire", guidewire, Guidewire), ("robot", robot, FollowerRobot),
+                                ("aorta_options", aorta_options, Aorta)):
+        check_keywords(what, given, [entity._build], _SUPPLIED[entity._build])
     if aorta == RANDOM_AORTA:
         raise ValueError(f"aorta='{RANDOM_AORTA}' is a pool of anatomies, not one task: use tasks.load")
     if aorta == CUSTOM_AORTA:
@@ -111,6 +133,7 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
         params = kwargs.pop("aorta_params", None)
         validate(task, aorta, obs)
         check_options(**kwargs)
+        check_keywords("tasks.load", kwargs, [build_task, Navigate.__init__], _SUPPLIED[Navigate.__init__])
 
         def build(asset, random_state):
             return NavigationEnvironment(build_task(task, str(asset), obs, **kwargs), random_state=random_state,

@@ -25,6 +25,11 @@ CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
 # The task's defaults are the training config's (cathsim_dmc.config.TaskConfig), defined there once.
 MAX_STEPS = TaskConfig.max_steps  # the paper's episode limit
 SUCCESS_RADIUS_M = TaskConfig.delta_m  # the paper's delta
+# The largest success radius `check_options` accepts. Every shipped target lies 17.5-18.5 cm
+# (straight line) from the wire tip's start, and the supra-aortic branches leave the arch a
+# few centimetres apart: a sphere wider than 5 cm around a target reaches into the arch
+# and the neighbouring branch, and 18 cm counts the start itself as a success.
+MAX_SUCCESS_RADIUS_M = 0.05
 
 
 def check_removed_arguments(arguments) -> None:
@@ -45,8 +50,9 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, progress_we
     argument (`check_removed_arguments`) fails here too; other names are left to `Navigate`.
     """
     check_removed_arguments(others)
-    if delta_m is not None:
-        check_number("delta_m", delta_m, 0.0, inclusive=False)
+    if delta_m is not None and check_number("delta_m", delta_m, 0.0, inclusive=False) > MAX_SUCCESS_RADIUS_M:
+        raise ValueError(f"delta_m={delta_m!r} m is larger than any meaningful success radius; choose one in "
+                         f"(0, {MAX_SUCCESS_RADIUS_M}] m (the paper's: {SUCCESS_RADIUS_M})")
     if max_steps is not None:
         check_number("max_steps", max_steps, 1, whole=True)
     if success_reward is not None:
@@ -160,6 +166,11 @@ class Navigate(composer.Task):
         self._scene = build_scene(aorta, guidewire, robot, aorta.targets[target], self._delta_m,
                                   lao_deg=observations.lao_deg, blood_drag=blood_drag, physics=physics)
         self._containment = self._scene.containment
+        depth_m = float(self._containment.field.signed_distance_m(self.target_position_m)[0])
+        if not depth_m > 0:  # no episode could succeed: it would evaluate at 0% without a word
+            raise ValueError(f"target {target!r} of aorta {aorta.name!r} lies outside its lumen "
+                             f"({-depth_m * 1e3:.1f} mm or more); `cathsim-aorta validate {aorta.asset.path}` "
+                             f"lists the asset's problems")
         self.set_timesteps(control_timestep=control_timestep_s, physics_timestep=guidewire.physics_timestep_s)
         self._task_observables, self._top_view = task_observables(self, observations, self._extra_observations)
 

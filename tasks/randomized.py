@@ -55,6 +55,8 @@ def random_anatomy_environment(params: dict | None, build, seed=None) -> "Random
         raise ValueError(f"aorta_params {unknown} unknown for aorta='{RANDOM_AORTA}'; "
                          f"choose from {list(POOL_KEYS + DISTRIBUTION_KEYS)}")
     env_keys = ("resample_every", "prebuild", "order")
+    if params.get("order", "random") not in ORDERS:  # before the pool, whose build takes tens of seconds
+        raise ValueError(f"aorta order={params['order']!r}; choose one of {list(ORDERS)}")
     pool = anatomy_pool(**{k: v for k, v in params.items() if k not in env_keys})
     return RandomAnatomyEnvironment(pool, build, seed=seed, **{k: params[k] for k in env_keys if k in params})
 

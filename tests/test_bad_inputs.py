@@ -26,6 +26,12 @@ def _write(path, content):
     path.write_text(content)
 
 
+def _has_cuda() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
 # (tool, arguments, text the one line must contain, whether it fails before any work).
 # `{tmp}` is the test's folder, `{run}` a real training run whose agent sees obs=internal.
 # A few failures need the environment first (the replay-buffer memory estimate reads the
@@ -90,10 +96,41 @@ CLI_CASES = [
     ("eval", ["seed=[1"], "seed=[1", True),
     ("bench", ["hydra/launcher=nope"], "nope", True),
     ("bench", ["physics_settings=[accurate,quick]"], "quick", True),
+    # every tool's values are typed and ranged before any work (cathsim_dmc/config_tools.py)
+    ("eval", ["video=maybe"], "video='maybe'", True),
+    ("eval", ["save_observations=maybe"], "save_observations='maybe'", True),
+    ("eval", ["video_format=mov"], "video_format='mov'; choose one of ['gif', 'mp4']", True),
+    ("eval", ["task.delta_m=5"], "delta_m=5", True),  # every episode would succeed at step 1
+    ("eval", ["aorta=random", "aorta.params.order=bogus", "aorta.params.pool_size=500"], "order='bogus'", True),
+    ("collect", ["episodes=-4"], "episodes=-4", True),
+    ("collect", ["action_noise_std=-1"], "action_noise_std=-1", True),
+    ("bc", ["data={tmp}/data", "bc.val_fraction=1.5"], "bc.val_fraction=1.5 must lie in [0, 1)", True),
+    ("bc", ["data={tmp}/data", "bc.image_key=depth"], "bc.image_key='depth'", True),
+    ("bc", ["data={tmp}/data", "bc.epochs=0"], "bc.epochs=0", True),
+    ("force", ["data={tmp}/data", "force.sizes=[1000,0]"], "force.sizes=0", True),
+    ("force", ["data={tmp}/data", "force.test_fraction=1"], "force.test_fraction=1", True),
+    ("force", ["data={tmp}/data", "label=peak"], "label='peak'", True),
+    ("bench", ["steps=0"], "steps=0", True),  # used to flood warnings
+    ("bench", ["repeats=-1"], "repeats=-1", True),
+    ("export", ["out={tmp}/a_file.npz"], "a_file.npz' is a file", True),  # used to raise NotADirectoryError
+    ("export", ["seed=abc"], "seed='abc'", True),
+    ("train", ["algo.buffer_size=1e12"], "write 1000000000000", True),
+    ("train", ["demos.path={tmp}/no_such_data"], "no_such_data' does not exist", True),
+    pytest.param("train", ["trainer.device=cuda"], "no CUDA GPU", True,
+                 marks=pytest.mark.skipif(_has_cuda(), reason="this machine has a CUDA GPU")),
+    *[(tool, ["task.dense=maybe", *extra], "task.dense='maybe'", True)  # the task group, typed for every tool
+      for tool, extra in (("eval", []), ("collect", []), ("train", []), ("bc", ["data={tmp}/data"]),
+                          ("force", ["data={tmp}/data"]), ("bench", []), ("export", []))],
     # cathsim-forcecheck (more cases: test_forcecheck.py)
     ("forcecheck", ["mean_n=1", "std_n=1"], "trajectories=", True),
     ("forcecheck", ["trajectories={tmp}/a_file.npz", "mean_n=abc", "std_n=1"], "mean_n='abc'", True),
+    ("forcecheck", ["trajectories=[{tmp}/forces.csv]", "mean_n=1", "std_n=1"], "is not a trajectory file", True),
 ]
+
+
+def _case_id(case) -> str:
+    values = case.values if hasattr(case, "values") else case
+    return f"{values[0]} {' '.join(values[1])}"
 
 
 @pytest.fixture(scope="module")
@@ -112,12 +149,12 @@ def internal_run(tmp_path_factory):
     return run
 
 
-@pytest.mark.parametrize("tool, args, expected, before_work", CLI_CASES,
-                         ids=[f"{c[0]} {' '.join(c[1])}" for c in CLI_CASES])
+@pytest.mark.parametrize("tool, args, expected, before_work", CLI_CASES, ids=[_case_id(c) for c in CLI_CASES])
 def test_command_line(tool, args, expected, before_work, tmp_path, request):
     run = request.getfixturevalue("internal_run") if any("{run}" in a for a in args) else None
     _write(tmp_path / "a_file.npz", "an existing file, not a dataset folder")
     _write(tmp_path / "data" / "manifest.json", '{"format": "cathsim-collect", "episodes": ')
+    _write(tmp_path / "forces.csv", "step,force_n\n0,0.1\n1,0.2\n")
     args = [a.format(tmp=tmp_path, run=run) for a in args]
     if tool == "train" and not any(a.startswith("trainer.total_timesteps=") for a in args):
         args.append("trainer.total_timesteps=10")
@@ -213,8 +250,91 @@ def _train(algo=None, trainer=None):
     return run
 
 
+def _entity(factory_name, **kwargs):
+    def build(tmp_path):
+        from cathsim_dmc import entities
+
+        factory = getattr(entities, factory_name)
+        return factory("type1", **kwargs) if factory_name == "Aorta" else factory(**kwargs)
+
+    return build
+
+
+def _gym_make(**kwargs):
+    def make(tmp_path):
+        import gymnasium
+
+        import cathsim_dmc.gym  # noqa: F401  (registers the ids)
+
+        gymnasium.make("cathsim_dmc/bca-type1-v0", **kwargs)
+
+    return make
+
+
+def _site_outside_the_lumen(tmp_path):
+    import json
+    import shutil
+
+    from cathsim_dmc import tasks
+    from cathsim_dmc.paths import resolve_asset
+
+    folder = tmp_path / "far_site"
+    shutil.copytree(resolve_asset("type1"), folder)
+    meta = json.loads((folder / "meta.json").read_text())
+    meta["sites"]["bca"] = [5.0, 0.07, 0.0]  # 5 m away, as in the reported asset
+    (folder / "meta.json").write_text(json.dumps(meta))
+    tasks.load("bca", str(folder))
+
+
+def _random_pool_order(tmp_path):
+    from cathsim_dmc import tasks
+
+    # 500 generated arches would take hours: the order must be refused before the pool
+    tasks.load("bca", "random", aorta_params={"order": "bogus", "pool_size": 500})
+
+
+def _csv_trajectory(reader):
+    def read(tmp_path):
+        from cathsim_dmc.supervised.data import read_keys
+        from cathsim_dmc.trajectory import load_trajectories
+
+        _write(tmp_path / "forces.csv", "step,force_n\n0,0.1\n")
+        if reader == "load_trajectories":
+            load_trajectories(tmp_path / "forces.csv")
+        else:
+            read_keys(tmp_path / "forces.csv", ["action"])
+
+    return read
+
+
 # (id, call with the test's tmp_path, exception type, text the message must contain)
 API_CASES = [
+    ("Guidewire(tip_angle_deg=nan)", _entity("Guidewire", tip_angle_deg=float("nan")), ValueError,
+     "Guidewire tip_angle_deg=nan must be a finite number"),
+    ("Guidewire(friction=-1)", _entity("Guidewire", friction=-1.0), ValueError, "Guidewire friction=-1.0"),
+    ("Guidewire(n_segments=nan)", _entity("Guidewire", n_segments=float("nan")), ValueError, "n_segments=nan"),
+    ("FollowerRobot(max_insertion_speed_m_s=nan)", _entity("FollowerRobot", max_insertion_speed_m_s=float("nan")),
+     ValueError, "FollowerRobot max_insertion_speed_m_s=nan"),
+    ("FollowerRobot(max_insertion_force_n=inf)", _entity("FollowerRobot", max_insertion_force_n=float("inf")),
+     ValueError, "FollowerRobot max_insertion_force_n=inf"),
+    ("Aorta(friction=nan)", _entity("Aorta", friction=float("nan")), ValueError, "Aorta friction=nan"),
+    ("Aorta(contact_margin_m=inf)", _entity("Aorta", contact_margin_m=float("inf")), ValueError,
+     "Aorta contact_margin_m=inf"),
+    ("tasks.load(guidewire={tip_angle_deg: nan})", _load(guidewire={"tip_angle_deg": float("nan")}), ValueError,
+     "tip_angle_deg=nan"),
+    ("tasks.load(blood_drag=-1)", _load(blood_drag=-1), ValueError, "blood_drag=-1"),
+    ("tasks.load(blood_drag='yes')", _load(blood_drag="yes"), ValueError, "blood_drag='yes'"),
+    ("tasks.load(delta_m=5)", _load(delta_m=5), ValueError, "delta_m=5 m is larger than any meaningful success radius"),
+    ("tasks.load(bogus=1)", _load(bogus=1), ValueError, "tasks.load: unknown keyword argument 'bogus'; valid: "),
+    ("tasks.load(guidewire={bogus: 1})", _load(guidewire={"bogus": 1}), ValueError,
+     "guidewire: unknown keyword argument 'bogus'; valid: contact_solimp"),
+    ("tasks.load(robot={speed: 1})", _load(robot={"speed": 1}), ValueError,
+     "robot: unknown keyword argument 'speed'; valid: channel_clearance_m"),
+    ("gymnasium.make(bogus=1)", _gym_make(bogus=1), ValueError, "unknown keyword argument 'bogus'"),
+    ("a target site outside the lumen", _site_outside_the_lumen, ValueError, "cathsim-aorta validate"),
+    ("aorta order='bogus'", _random_pool_order, ValueError, "order='bogus'; choose one of"),
+    ("a CSV as a trajectory file", _csv_trajectory("load_trajectories"), ValueError, "is not a trajectory file"),
+    ("a CSV as a dataset file", _csv_trajectory("read_keys"), ValueError, "not an .npz archive"),
     ("tasks.load(image_size=0)", _load(image_size=0), ValueError, "image_size=0"),
     ("tasks.load(image_size=300, renderer='gl')", _load(obs="pixels", image_size=300, renderer="gl"), ValueError,
      "image_size=300 is too large for the gl renderer and the camera style"),
@@ -253,3 +373,33 @@ def test_api(call, error, expected, tmp_path):
         call(tmp_path)
     assert expected in str(raised.value)
     assert "\n" not in str(raised.value)
+
+
+def test_continuing_a_dataset_records_a_truncated_shard_again(tmp_path):
+    # A collection killed while writing a shard used to make the next run fail with BadZipFile.
+    from cathsim_dmc.supervised.collect import SHARD_FORMAT, collect
+
+    settings = dict(task="bca", aorta="type1", policy="forward", episodes_per_shard=1, seed=0,
+                    task_options={"max_steps": 3}, show_progress=False)
+    collect(tmp_path, episodes=2, **settings)
+    shard = tmp_path / SHARD_FORMAT.format(1)
+    whole = shard.read_bytes()
+    shard.write_bytes(whole[: len(whole) // 2])
+    manifest = collect(tmp_path, episodes=2, **settings)
+    assert manifest["episodes"] == 2 and shard.read_bytes() == whole  # the same episode, recorded again
+
+
+def test_a_training_size_beyond_the_data_is_labelled_with_the_samples_it_has():
+    # force.sizes=[1000000] on a small dataset used to show "1,000,000 samples" while training on all there is.
+    from cathsim_dmc.supervised.force import ForceConfig, markdown, train_force_sizes
+
+    rng = np.random.default_rng(0)
+    episodes = np.repeat(np.arange(6), 4)
+    images = rng.integers(0, 255, (len(episodes), 1, 80, 80), dtype=np.uint8)
+    labels = []
+    report = train_force_sizes(images, rng.random(len(episodes)), episodes,
+                               ForceConfig(sizes=(1_000_000,), epochs=1, min_updates=1, test_fraction=0.34),
+                               progress=lambda size, epoch, epochs, best: labels.append(size))
+    trained = report["sizes"][0]["train_samples"]
+    assert trained < 1_000_000 and set(labels) == {trained}
+    assert f"{trained:,} (all there is; 1,000,000 asked)" in markdown(report)

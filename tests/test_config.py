@@ -34,7 +34,7 @@ def _one_line(result) -> str:
     (["demos.bc_filter=q"], "unknown option demos.bc_filter"),  # removed
     (["trainer.total_timesteps=abc"], "trainer.total_timesteps='abc'"),
     (["trainer.total_timesteps=5.5"], "trainer.total_timesteps=5.5"),
-    (["algo.buffer_size=1e12"], "algo.buffer_size=1000000000000.0"),
+    (["algo.buffer_size=1e12"], "algo.buffer_size=1e+12 is written as a decimal number; an integer is needed: write 1000000000000"),
 ])
 def test_a_misspelled_key_or_a_wrong_type_fails_at_composition_in_one_line(args, expected, tmp_path):
     run = tmp_path / "run"
@@ -236,3 +236,19 @@ def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(t
     warnings = [line for line in (again.stdout + again.stderr).splitlines() if "dropped options" in line]
     assert len(warnings) == 1 and "demos.bc_filter" in warnings[0] and "trainer.confirm_episodes" in warnings[0]
     assert (run / "checkpoints" / "step_30.zip").is_file() or (run / "checkpoints" / "last.zip").is_file()
+
+
+def test_the_image_keys_the_schema_accepts_are_the_students():
+    from cathsim_dmc import config_tools
+    from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE
+
+    assert set(config_tools.IMAGE_KEYS) == set(PRESET_FOR_IMAGE)
+
+
+@pytest.mark.parametrize("tool", ["eval", "collect", "bc", "force", "bench", "export"])
+def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
+    from cathsim_dmc.config_tools import TOOL_SCHEMAS
+
+    cfg = OmegaConf.create(_compose(tool))
+    config.validate(cfg, tool)
+    assert set(cfg) - {"hydra"} == {spec.name for spec in dataclasses.fields(TOOL_SCHEMAS[tool])}

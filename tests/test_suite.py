@@ -50,18 +50,33 @@ def test_task_observations_rewards_and_truncation(task, aorta):
     assert env.task.target_position_m.shape == (3,)
 
 
+def _target_at_the_entry(tmp_path) -> str:
+    """A copy of type1 whose lcca site is its entry site, about 1 cm from the wire tip's
+    start: with the largest success radius (5 cm) the first step already succeeds."""
+    import json
+    import shutil
+
+    folder = tmp_path / "lcca_at_entry"
+    shutil.copytree(resolve_asset("type1"), folder)
+    meta = json.loads((folder / "meta.json").read_text())
+    meta["sites"]["lcca"] = meta["entry"]["position"]
+    (folder / "meta.json").write_text(json.dumps(meta))
+    return str(folder)
+
+
 @pytest.mark.parametrize("max_steps", [300, 1])
-def test_success_terminates_with_reward_and_zero_discount(max_steps):
-    # A success radius larger than the anatomy: the first step already succeeds. With
-    # max_steps=1 it is also the last allowed step: a success still, not a time limit.
-    env = tasks.load("lcca", "type1", obs="internal", seed=0, delta_m=1.0, success_reward=10.0, max_steps=max_steps)
+def test_success_terminates_with_reward_and_zero_discount(max_steps, tmp_path):
+    # The first step already succeeds. With max_steps=1 it is also the last allowed
+    # step: a success still, not a time limit.
+    env = tasks.load("lcca", _target_at_the_entry(tmp_path), obs="internal", seed=0, delta_m=0.05,
+                     success_reward=10.0, max_steps=max_steps)
     env.reset()
     timestep = env.step(np.zeros(2))
     assert timestep.last() and timestep.reward == 10.0 and timestep.discount == 0.0
     assert env.task.success and env.task.step_count == 1
 
 
-def test_sparse_reward_is_zero_until_the_target_is_reached():
+def test_sparse_reward_is_zero_until_the_target_is_reached(tmp_path):
     rewards = {}
     for dense in (True, False):
         env = tasks.load("lcca", "type1", obs="internal", seed=0, dense=dense, max_steps=4)
@@ -72,7 +87,8 @@ def test_sparse_reward_is_zero_until_the_target_is_reached():
     assert rewards[False] == [0.0] * 4
     assert all(r < -0.1 for r in rewards[True])  # the same steps, dense: minus the ~0.2 m to go
     # Reaching the target pays the success reward, sparse or not.
-    env = tasks.load("lcca", "type1", obs="internal", seed=0, dense=False, delta_m=1.0, success_reward=7.0)
+    env = tasks.load("lcca", _target_at_the_entry(tmp_path), obs="internal", seed=0, dense=False, delta_m=0.05,
+                     success_reward=7.0)
     env.reset()
     timestep = env.step(np.zeros(2))
     assert timestep.last() and timestep.reward == 7.0 and timestep.discount == 0.0

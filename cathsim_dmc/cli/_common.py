@@ -83,7 +83,7 @@ def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
 def check_composes(config_name: str, argv: Sequence[str]) -> None:
     """Compose the tool's config with the command line's overrides, as Hydra is about to,
     and exit with status 2 and one line if that fails: an unknown key, a value of the
-    wrong type or (cathsim-train) out of range (the schemas of cathsim_dmc.config), a
+    wrong type or out of range (the schemas of cathsim_dmc.config), a
     malformed override, a missing config option. Hydra itself would print several lines
     and exit 1.
 
@@ -95,16 +95,17 @@ def check_composes(config_name: str, argv: Sequence[str]) -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from cathsim_dmc.config import check_known_keys, register_schemas, validate
+    from cathsim_dmc.config import check_known_keys, register_schemas, tool_schemas, validate
     from cathsim_dmc.paths import conf_root
 
     register_schemas()
     try:
         with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3", job_name=config_name):
             cfg = compose(config_name, overrides=list(argv))
-        check_known_keys(cfg, train=config_name == "train")
-        if config_name == "train":  # its ranges too, before Hydra makes the run folder
-            validate(cfg)
+        if config_name in tool_schemas():  # its keys and ranges, before Hydra makes the run folder
+            validate(cfg, config_name)
+        else:
+            check_known_keys(cfg, None)
     except (HydraException, OmegaConfBaseException) as error:
         fail(composition_error(error))
     except ValueError as error:
@@ -124,6 +125,9 @@ def composition_error(error: Exception) -> str:
         return f"unknown option {cause.full_key}: {str(cause).splitlines()[0]}"
     if cause is not None and getattr(cause, "value", None) is not None:  # a value of the wrong type
         problem = str(cause).splitlines()[0].rstrip(".")
+        if isinstance(cause.value, float) and cause.value.is_integer() and "Integer" in problem:  # 1e12
+            return (f"{cause.full_key}={cause.value:g} is written as a decimal number; an integer is needed: "
+                    f"write {int(cause.value)}")
         return f"{cause.full_key}={cause.value!r}: {problem}"
     lines = [line.strip().rstrip(".:") for line in str(error).splitlines()]
     keep = [line for line in lines if line and not line.startswith(("full_key", "object_type", "See https",

@@ -38,7 +38,6 @@ def run(cfg) -> dict:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
-    from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
@@ -46,17 +45,11 @@ def run(cfg) -> dict:
     from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
     from cathsim_dmc.supervised.data import has_keys, load_arrays, stack_frames
 
+    # Every value's type and range was checked before Hydra started (cathsim_dmc/config_tools.py).
     image_key = str(cfg.bc.image_key)
-    if image_key not in PRESET_FOR_IMAGE:
-        raise ValueError(f"bc.image_key={image_key!r}; choose one of {sorted(PRESET_FOR_IMAGE)}")
     options = {k: v for k, v in OmegaConf.to_container(cfg.bc).items() if k != "image_key"}
-    bc_cfg = BCConfig(**options, seed=check_number("seed", cfg.seed, 0, whole=True))
-    if bc_cfg.epochs < 1 or bc_cfg.batch_size < 1:
-        raise ValueError(f"bc.epochs={bc_cfg.epochs} and bc.batch_size={bc_cfg.batch_size} must be at least 1")
-    if bc_cfg.frames < 1:
-        raise ValueError(f"bc.frames={bc_cfg.frames} must be at least 1 (1: the paper's single image)")
-    eval_episodes = check_number("eval_episodes", cfg.eval_episodes, 0, whole=True)
-    eval_seed = check_number("eval_seed", cfg.eval_seed, 0, whole=True)
+    bc_cfg = BCConfig(**options, seed=cfg.seed)
+    eval_episodes, eval_seed = cfg.eval_episodes, cfg.eval_seed
     kwargs = env_kwargs(cfg)
     paths = dataset_paths(cfg.data)
     manifests = dataset_manifests(paths)

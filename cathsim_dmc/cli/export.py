@@ -14,15 +14,13 @@ from pathlib import Path
 
 def export(cfg) -> Path:
     from cathsim_dmc import tasks
-    from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import env_kwargs
     from cathsim_dmc.export import SCENE_FILE, export_scene
 
     out = Path(str(cfg.out))
     if (out / SCENE_FILE).exists() and not cfg.overwrite:
         raise ValueError(f"{out / SCENE_FILE} exists; pass overwrite=true to replace it")
-    seed = check_number("seed", cfg.seed, 0, whole=True)
-    env = tasks.load(**env_kwargs(cfg), seed=seed)
+    env = tasks.load(**env_kwargs(cfg), seed=cfg.seed)
     try:
         env.reset()
         scene = export_scene(env, out)

@@ -16,10 +16,6 @@ import logging
 from pathlib import Path
 
 log = logging.getLogger("cathsim-force")
-IMAGE_KEYS = ("pixels", "guidewire_mask")
-# What the network predicts: the total contact force averaged over the control step's
-# physics steps, or the total at its last physics step (spiky: contacts chatter).
-FORCE_LABELS = ("mean_contact_force_n", "contact_force_n")
 
 
 def run(cfg) -> dict:
@@ -32,15 +28,12 @@ def run(cfg) -> dict:
     from cathsim_dmc.supervised.data import has_keys, load_arrays
     from cathsim_dmc.supervised.force import ForceConfig, markdown, train_force_sizes
 
-    if cfg.image_key not in IMAGE_KEYS:
-        raise ValueError(f"image_key={cfg.image_key!r}; choose one of {list(IMAGE_KEYS)}")
-    if cfg.label not in FORCE_LABELS:
-        raise ValueError(f"label={cfg.label!r}; choose one of {list(FORCE_LABELS)}")
+    # image_key, label and every force.* value were checked before Hydra started (cathsim_dmc/config_tools.py)
     options = OmegaConf.to_container(cfg.force, resolve=True)
     options["sizes"] = tuple(int(s) for s in options["sizes"])
     force_cfg = ForceConfig(**options, seed=int(cfg.seed))
-    if not force_cfg.sizes or min(force_cfg.sizes) < 1:
-        raise ValueError(f"force.sizes={list(force_cfg.sizes)} must be positive sample counts")
+    if not force_cfg.sizes:
+        raise ValueError("force.sizes=[] names no training size; e.g. force.sizes=[1000,10000]")
     paths = dataset_paths(cfg.data)
     image = f"obs_{cfg.image_key}"
     use_z = force_cfg.z_coef > 0 and has_keys(paths, ("feature_z",))
@@ -75,6 +68,9 @@ def run(cfg) -> dict:
     table = markdown(report)
     (run_dir / "force.md").write_text(table)
     for r in report["sizes"]:
+        if r["train_samples"] < r["size_requested"]:
+            log.warning("force.sizes asked for %d samples; the training episodes hold %d, all used",
+                        r["size_requested"], r["train_samples"])
         log.info("%d samples: %d updates in %.0f s (%.1f s per epoch per 10K samples)", r["train_samples"],
                  r["updates"], r["seconds"], r["seconds"] / r["epochs"] * 10_000 / max(r["fit_samples"], 1))
     print(table, end="")

@@ -25,6 +25,7 @@ from dm_control import composer, mjcf
 from cathsim_dmc.anatomy import AortaAsset, load_asset
 from cathsim_dmc.anatomy.validate import open_end_plane
 from cathsim_dmc import geom_groups
+from cathsim_dmc.checks import check_parameters
 from cathsim_dmc.paths import resolve_asset
 
 
@@ -110,6 +111,8 @@ class Aorta(composer.Entity):
             raise ValueError("wall='field' (physics='fast_field') needs hulls_in_mjcf=False: its distance "
                              "field goes into the compiled model through add_geoms (NavigationEnvironment does this); "
                              "for the wall in the MJCF model use wall='prisms' (physics='fast')")
+        check_parameters("Aorta", non_negative=dict(friction=friction, contact_margin_m=contact_margin_m),
+                         finite=dict(solref=solref, solimp=solimp, rgba=rgba))
         self.wall = wall
         if wall == "field":
             from cathsim_dmc import wall_field

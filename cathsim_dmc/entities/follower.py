@@ -42,6 +42,7 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
+from cathsim_dmc.checks import check_parameters
 from cathsim_dmc.entities.observables import JointObservables
 
 
@@ -96,6 +97,14 @@ class FollowerRobot(composer.Entity):
           seal_thickness_m: thickness of the seal plate along the wire, in metres.
           name: model name.
         """
+        check_parameters("FollowerRobot", positive=dict(
+            wire_length_m=wire_length_m, stroke_m=stroke_m, max_insertion_speed_m_s=max_insertion_speed_m_s,
+            max_rotation_speed_rad_s=max_rotation_speed_rad_s, max_insertion_force_n=max_insertion_force_n,
+            wire_radius_m=wire_radius_m, servo_stiffness_n_m=servo_stiffness_n_m,
+            servo_stiffness_nm_rad=servo_stiffness_nm_rad, seal_half_width_m=seal_half_width_m),
+            non_negative=dict(channel_clearance_m=channel_clearance_m),
+            finite=dict(initial_insertion_m=initial_insertion_m, channel_solref=channel_solref,
+                        channel_solimp=channel_solimp))
         if stroke_m >= wire_length_m - initial_insertion_m:
             raise ValueError(
                 f"stroke_m={stroke_m} must be shorter than the wire behind the outlet "

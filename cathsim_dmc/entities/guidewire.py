@@ -25,7 +25,7 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from cathsim_dmc import geom_groups
-from cathsim_dmc.checks import check_number
+from cathsim_dmc.checks import check_number, check_parameters
 from cathsim_dmc.entities.observables import JointObservables
 
 TIP_SHAPES = ("straight", "angled", "j")
@@ -136,6 +136,13 @@ class Guidewire(composer.Entity):
                            ("youngs_modulus_pa", youngs_modulus_pa), ("tip_youngs_modulus_pa", tip_youngs_modulus_pa),
                            ("density_kg_m3", density_kg_m3), ("physics_timestep_s", physics_timestep_s)):
             check_number(f"Guidewire {key}", value, 0.0, inclusive=False)
+        # (MuJoCo reads a negative solref as stiffness and damping: only finiteness is checked)
+        check_parameters("Guidewire", positive=dict(core_diameter_m=core_diameter_m, mass_scale=mass_scale),
+                         non_negative=dict(friction=friction, damping_ratio=damping_ratio),
+                         finite=dict(tip_angle_deg=tip_angle_deg, contact_solref=contact_solref,
+                                     contact_solimp=contact_solimp))
+        check_number("Guidewire n_segments", n_segments, 2, whole=True)
+        check_number("Guidewire n_tip_segments", n_tip_segments, 1, whole=True)
         if not 0 < tip_length_m < length_m:
             raise ValueError(f"tip_length_m={tip_length_m} must lie in (0, length_m={length_m})")
         if n_segments < 2 or n_tip_segments < 1:

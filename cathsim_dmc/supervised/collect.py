@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -142,7 +143,7 @@ def shard_info(path) -> dict | None:
             episode, terminated = data["episode"], data["terminated"]
             return {"file": Path(path).name, "first_episode": int(data["first_episode"]), "episodes": episodes,
                     "samples": int(len(episode)), "successes": int(len(np.unique(episode[terminated])))}
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # truncated by a kill: recorded again
         return None
 
 

@@ -85,12 +85,18 @@ def read_keys(path, keys) -> dict:
                         if any(k.startswith(("obs_", "start_")) for k in missing) else "")
                 raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(data.files)}")
             return {key: data[key] for key in keys}
-    except (OSError, EOFError, zipfile.BadZipFile) as error:
-        raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
+    except (OSError, EOFError, TypeError, AttributeError, zipfile.BadZipFile) as error:
+        raise _unreadable(path, error) from error
     except ValueError as error:
         if str(path) in str(error):
             raise
-        raise ValueError(f"{path} is not a readable trajectory file ({error})") from error
+        raise _unreadable(path, error) from error
+
+
+def _unreadable(path, error) -> ValueError:
+    # NumPy reads a file that is no .npz archive (a CSV, say) as a pickle, and refuses that
+    reason = "not an .npz archive" if "pickle" in str(error) else f"{type(error).__name__}: {error}"
+    return ValueError(f"{path} is not a readable trajectory file ({reason}); cathsim-eval and cathsim-collect write them")
 
 
 def has_keys(paths, keys) -> bool:
@@ -100,8 +106,8 @@ def has_keys(paths, keys) -> bool:
             with np.load(path, allow_pickle=False) as data:
                 if not set(keys) <= set(data.files):
                     return False
-        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as error:
-            raise ValueError(f"{path} is not a readable trajectory file ({type(error).__name__}: {error})") from error
+        except (OSError, EOFError, ValueError, TypeError, AttributeError, zipfile.BadZipFile) as error:
+            raise _unreadable(path, error) from error
     return True
 
 

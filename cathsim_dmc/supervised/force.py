@@ -178,7 +178,7 @@ def train_force_sizes(images, force, episodes, cfg: ForceConfig, z=None, out_dir
         net = initial_network(images.shape[1:], z.shape[1] if z is not None else 0, cfg)
         before_prediction = _predict(net, images, test_rows)
         net, info = train_force(images, force, rows, cfg, z, net, episodes,
-                                (lambda e, n, b, s=size: progress(s, e, n, b)) if progress else None)
+                                (lambda e, n, b, s=len(rows): progress(s, e, n, b)) if progress else None)
         if out_dir is not None:
             torch.save({"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim},
                        Path(out_dir) / f"force_model_{len(rows)}.pt")
