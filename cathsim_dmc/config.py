@@ -155,12 +155,19 @@ class ExperimentalConfig:
 
 
 @dataclass
-class TrainConfig:
-    """cathsim-train's whole config (conf/train.yaml): the groups, then the run's own keys."""
+class ScenarioConfig:
+    """The groups every tool that runs the environment composes: the task, the aorta and
+    the observations."""
 
     task: TaskConfig = MISSING
     aorta: Any = MISSING
     obs: Any = MISSING
+
+
+@dataclass
+class TrainConfig(ScenarioConfig):
+    """cathsim-train's whole config (conf/train.yaml): the groups, then the run's own keys."""
+
     algo: AlgoConfig = MISSING
     reward: Any = MISSING
     demos: DemosConfig = MISSING

@@ -10,7 +10,7 @@ wrong type (`video=maybe`) then fails while composing, one out of range
 from dataclasses import dataclass, field
 from typing import Any, List, Optional
 
-from cathsim_dmc.config import MISSING, TaskConfig, TrainConfig, _number
+from cathsim_dmc.config import MISSING, ScenarioConfig, TaskConfig, TrainConfig, _number
 
 VIDEO_FORMATS = ("gif", "mp4")
 IMAGE_KEYS = ("pixels", "guidewire_mask")  # the image a student (bc) or force network sees
@@ -30,12 +30,9 @@ def _set(minimum=None, **check):
 
 
 @dataclass
-class EvalConfig:
+class EvalConfig(ScenarioConfig):
     """cathsim-eval (conf/eval.yaml)."""
 
-    task: TaskConfig = MISSING
-    aorta: Any = MISSING
-    obs: Any = MISSING
     policy: str = MISSING
     episodes: int = _set(1, whole=True)
     seed: int = _set(0, whole=True)
@@ -46,12 +43,9 @@ class EvalConfig:
 
 
 @dataclass
-class CollectConfig:
+class CollectConfig(ScenarioConfig):
     """cathsim-collect (conf/collect.yaml)."""
 
-    task: TaskConfig = MISSING
-    aorta: Any = MISSING
-    obs: Any = MISSING
     policy: str = MISSING
     episodes: int = _set(1, whole=True)
     episodes_per_shard: int = _set(1, whole=True)
@@ -77,12 +71,9 @@ class BCOptions:
 
 
 @dataclass
-class BCToolConfig:
+class BCToolConfig(ScenarioConfig):
     """cathsim-bc (conf/bc.yaml)."""
 
-    task: TaskConfig = MISSING
-    aorta: Any = MISSING
-    obs: Any = MISSING
     data: Any = MISSING                # a dataset folder or a list of them
     seed: int = _set(0, whole=True)
     bc: BCOptions = field(default_factory=BCOptions)
