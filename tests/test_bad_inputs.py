@@ -121,6 +121,9 @@ CLI_CASES = [
     *[(tool, ["task.dense=maybe", *extra], "task.dense='maybe'", True)  # the task group, typed for every tool
       for tool, extra in (("eval", []), ("collect", []), ("train", []), ("bc", ["data={tmp}/data"]),
                           ("force", ["data={tmp}/data"]), ("bench", []), ("export", []))],
+    # a generated arch's sizes are guarded: 5 m used to build for 30-90 s before failing
+    ("eval", ["aorta=custom", "+aorta.params.arch_width_m=5"], "arch_width_m=5.0 m is larger", True),
+    ("eval", ["aorta=custom", "+aorta.params.sdf_spacing_m=0.00001"], "sdf_spacing_m=1e-05", True),
     # cathsim-forcecheck (more cases: test_forcecheck.py)
     ("forcecheck", ["mean_n=1", "std_n=1"], "trajectories=", True),
     ("forcecheck", ["trajectories={tmp}/a_file.npz", "mean_n=abc", "std_n=1"], "mean_n='abc'", True),
@@ -403,3 +406,11 @@ def test_a_training_size_beyond_the_data_is_labelled_with_the_samples_it_has():
     trained = report["sizes"][0]["train_samples"]
     assert trained < 1_000_000 and set(labels) == {trained}
     assert f"{trained:,} (all there is; 1,000,000 asked)" in markdown(report)
+
+
+def test_a_generated_arch_too_large_is_refused_before_any_build(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.aorta", "build", "arch_width_m=5",
+                             f"out={tmp_path / 'arch'}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1 and "arch_width_m=5.0 m is larger" in lines[0], result.stderr
+    assert not any(tmp_path.iterdir()), "nothing may be written before the error"

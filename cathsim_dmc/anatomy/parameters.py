@@ -17,6 +17,14 @@ def arch_type_of(ratio: float) -> str:
     return "I" if ratio < 1.0 else ("II" if ratio <= 2.0 else "III")
 
 
+# Bounds of the generator's sizes (the validate() size guards). The largest length a human
+# aortic model needs is the descending aorta (11 cm here); 25 cm leaves room for unusual
+# anatomy. The shipped arches use a 1 mm grid and 7 mm base edges.
+MAX_LENGTH_M = 0.25
+MIN_SDF_SPACING_M = 0.00025
+MIN_EDGE_LENGTH_M = 0.001
+
+
 @dataclasses.dataclass(frozen=True)
 class ArchParams:
     """Generator parameters. Lengths in metres, angles in degrees.
@@ -176,6 +184,17 @@ class ArchParams:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"ArchParams.{name} must be > 0, got {getattr(self, name)!r}.")
+        # Size guards: building meshes a level set on a grid over the arch's box, so a length
+        # given in millimetres as metres, or a very fine grid, would run for minutes or
+        # exhaust memory before failing.
+        for name in [f.name for f in dataclasses.fields(self) if f.name.endswith("_m")]:
+            if not getattr(self, name) <= MAX_LENGTH_M:
+                raise ValueError(f"ArchParams.{name}={getattr(self, name)!r} m is larger than any aortic arch "
+                                 f"dimension; use at most {MAX_LENGTH_M} m (values are in metres).")
+        if self.sdf_spacing_m < MIN_SDF_SPACING_M or self.edge_length_m < MIN_EDGE_LENGTH_M:
+            raise ValueError(f"ArchParams.sdf_spacing_m={self.sdf_spacing_m!r} and edge_length_m={self.edge_length_m!r} "
+                             f"must be at least {MIN_SDF_SPACING_M} and {MIN_EDGE_LENGTH_M} m (finer grids and "
+                             f"meshes take minutes to build and change no contact).")
         if self.site_depth_m >= min(self.branch_length_m(b) for b in BRANCHES):
             raise ValueError("ArchParams.site_depth_m must be shorter than every branch length.")
         # Narrow branches are refined by their fold angle (max_dihedral_deg) and, from mesher
