@@ -4,14 +4,15 @@ in Hydra's ConfigStore, and the one place where option defaults and ranges live.
 The YAML files in conf/ stay the options a user picks (`algo=sac_tuned`, `demos=expert`);
 each starts from its group's schema (`defaults: [schema, _self_]`) and sets only what
 differs from it. Composition then refuses an unknown key (`trainer.total_timestep=5`) and
-a value of the wrong type (`trainer.total_timesteps=abc`); `validate` checks the ranges
-(positive, within [0, 1], one of a few names) before any work.
+a value of the wrong type (`trainer.total_timesteps=abc`); `config_tools.validate` checks
+the ranges (positive, within [0, 1], one of a few names) before any work.
 
-Registering (`register_schemas`) must precede composing conf/: the tools do it in
-cathsim_dmc.cli._common. Importing this module needs neither dm_control, MuJoCo nor torch.
+Registering (`config_tools.register_schemas`) must precede composing conf/: the tools do it
+in cathsim_dmc.cli._common. Importing this module needs neither dm_control, MuJoCo nor
+torch: the simulation reads its defaults from here.
 
 The other tools (cathsim-eval, -collect, -bc, -force, -bench, -export) have a schema each
-too, in cathsim_dmc/config_tools.py (`tool_schemas()`); `validate(cfg, tool)` checks any of them.
+too, in cathsim_dmc/config_tools.py, which also registers and checks them all.
 
 Run folders written before an option was removed or moved still resume: `upgrade_saved_config`
 translates their config.yaml (see there).
@@ -20,7 +21,7 @@ translates their config.yaml (see there).
 import logging
 from pathlib import Path
 from dataclasses import MISSING as NO_DEFAULT
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields
 from typing import Any, List, Mapping, Optional
 
 log = logging.getLogger(__name__)
@@ -177,29 +178,6 @@ class TrainConfig(ScenarioConfig):
     experimental: ExperimentalConfig = field(default_factory=ExperimentalConfig)
 
 
-SCHEMA = "schema"  # each group's schema, named in its YAML files' defaults lists
-GROUP_SCHEMAS = {"task": TaskConfig, "algo": AlgoConfig, "demos": DemosConfig}
-TRAIN_SCHEMA = "train_schema"  # conf/train.yaml's first default
-
-
-def tool_schemas() -> dict:
-    """Each tool's schema: {"train": TrainConfig, "eval": EvalConfig, ...}."""
-    from cathsim_dmc.config_tools import TOOL_SCHEMAS
-
-    return TOOL_SCHEMAS
-
-
-def register_schemas() -> None:
-    """Put the schemas in Hydra's ConfigStore (idempotent). Composing conf/ needs them."""
-    from hydra.core.config_store import ConfigStore
-
-    store = ConfigStore.instance()
-    for group, schema in GROUP_SCHEMAS.items():
-        store.store(group=group, name=SCHEMA, node=schema)
-    for tool, schema in tool_schemas().items():  # conf/<tool>.yaml's first default: <tool>_schema
-        store.store(name=f"{tool}_schema", node=schema)
-
-
 # --- ranges ---------------------------------------------------------------------------
 
 TRAIN_SECTIONS = {"trainer": TrainerConfig, "algo": AlgoConfig, "demos": DemosConfig,
@@ -250,63 +228,6 @@ def with_defaults(schema, values: Mapping | None) -> dict:
     defaults = {spec.name: spec.default_factory() if spec.default is NO_DEFAULT else spec.default
                 for spec in fields(schema) if spec.default is not NO_DEFAULT or spec.default_factory is not NO_DEFAULT}
     return {**defaults, **dict(values or {})}
-
-
-def _sections(schema) -> dict:
-    """A tool schema's typed sections: name -> dataclass."""
-    return {spec.name: spec.type for spec in fields(schema) if is_dataclass(spec.type)}
-
-
-def check_known_keys(cfg, tool: str | None = "train") -> None:
-    """ValueError naming the first key no schema knows. Composition already refuses one
-    set as `key=value`; Hydra's `+key=value` adds it past the schema, and a config it
-    composed would then ignore it silently. `tool`: whose whole config cfg is (its top
-    level and every typed section are checked); None: only the typed groups."""
-    schema = tool_schemas().get(tool)
-    sections = {**GROUP_SCHEMAS, **(_sections(schema) if schema else {})}
-    known = {name: {spec.name for spec in fields(section)} for name, section in sections.items()}
-    if schema:
-        known[""] = {spec.name for spec in fields(schema)} | {"hydra"}
-    for section, names in known.items():
-        node = cfg if not section else cfg.get(section)
-        if node is None:
-            continue
-        unknown = sorted(set(node.keys()) - names)
-        if unknown:
-            key = f"{section}.{unknown[0]}" if section else unknown[0]
-            raise ValueError(f"unknown option {key}: not in {(sections[section] if section else schema).__name__} "
-                             f"(cathsim_dmc/config.py)")
-
-
-def validate(cfg, tool: str = "train") -> None:
-    """Every key and range of a composed config of `tool` (cathsim-<tool>; sections it
-    lacks are skipped): ValueError naming the first unknown key or value out of range.
-    Types were checked when it was composed."""
-    check_known_keys(cfg, tool)
-    schema = tool_schemas()[tool]
-    check_section("", schema, cfg)
-    for name, section in _sections(schema).items():
-        if cfg.get(name) is not None:
-            check_section(name, section, cfg[name])
-    demos = cfg.get("demos")
-    if demos is not None and demos.get("path") and not Path(str(demos.path)).exists():
-        raise ValueError(f"demos.path={str(demos.path)!r} does not exist; give a cathsim-collect dataset folder")
-    trainer = cfg.get("trainer")
-    if trainer is not None and str(trainer.get("device", "")).startswith("cuda"):
-        check_cuda("trainer.device", str(trainer.device))
-
-
-def check_cuda(key: str, device: str) -> None:
-    """ValueError naming `key=device` (cuda or cuda:<index>) unless torch sees that GPU:
-    training would otherwise fail late or, with device=auto's fallback, run on the CPU unasked."""
-    import torch
-
-    if not torch.cuda.is_available():
-        raise ValueError(f"{key}={device!r}, but torch sees no CUDA GPU on this machine; choose cpu or auto")
-    count, index = torch.cuda.device_count(), device.partition(":")[2]
-    if index and not (index.isdigit() and int(index) < count):
-        raise ValueError(f"{key}={device!r}: this machine has {count} CUDA GPU(s); choose cuda or cuda:0 to "
-                         f"cuda:{count - 1}")
 
 
 # --- run folders written by older versions ----------------------------------------------

@@ -115,6 +115,22 @@ class CathSimEnv(gymnasium.Env):
         return info
 
 
+def make_registered(registered_id: str, **kwargs) -> CathSimEnv:
+    """The entry point of the registered ids. An id names its task and aorta, so
+    `gymnasium.make(id, task=..., aorta=...)` naming others is refused: the environment's
+    `spec.id` would name one that it is not."""
+    task, aorta = kwargs.get("task"), kwargs.get("aorta")
+    if env_id(task, aorta) != registered_id:
+        import gymnasium
+
+        other = env_id(task, aorta)
+        instead = (f"gymnasium.make({other!r})" if other in gymnasium.registry
+                   else f"CathSimEnv(task={task!r}, aorta={aorta!r})")
+        raise ValueError(f"{registered_id} is the {registered_id.split('/')[1].rsplit('-', 1)[0]} environment; "
+                         f"for task={task!r}, aorta={aorta!r} use {instead}")
+    return CathSimEnv(**kwargs)
+
+
 def _action_space(spec):
     """The Box of a dm_env BoundedArray action spec: the task owns its action's bounds."""
     shape = tuple(spec.shape)

@@ -1,8 +1,10 @@
 """The suite's names and Gymnasium ids, importable without dm_control or MuJoCo.
 
 `import cathsim_dmc` registers every id from here: the ids point at
-``cathsim_dmc.gym:CathSimEnv`` by name, so dm_control and MuJoCo load only when
+``cathsim_dmc.gym:make_registered`` by name, so dm_control and MuJoCo load only when
 ``gymnasium.make`` builds an environment, and the anatomy layer stays pure geometry.
+Besides every (target, shipped aorta) pair, ``{task}-random-v0`` draws a generated arch
+each episode (``aorta="random"``).
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from cathsim_dmc.paths import available_aortas
 
 TARGETS = ("bca", "lcca")
 ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
-ENTRY_POINT = "cathsim_dmc.gym:CathSimEnv"
+ENTRY_POINT = "cathsim_dmc.gym:make_registered"
+RANDOM_AORTA = "random"  # tasks.load's randomised anatomy (cathsim_dmc.tasks.randomized)
 
 
 def env_id(task: str, aorta: str) -> str:
@@ -27,7 +30,9 @@ def register_all() -> None:
     """Register an id for every pair in the suite (idempotent)."""
     import gymnasium
 
-    for task, aorta in all_tasks():
+    pairs = (*all_tasks(), *((target, RANDOM_AORTA) for target in TARGETS))
+    for task, aorta in pairs:
         name = env_id(task, aorta)
         if name not in gymnasium.registry:
-            gymnasium.register(id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "aorta": aorta})
+            gymnasium.register(id=name, entry_point=ENTRY_POINT,
+                               kwargs={"task": task, "aorta": aorta, "registered_id": name})

@@ -19,7 +19,8 @@ from typing import Sequence
 
 import numpy as np
 
-RANDOM_AORTA = "random"
+from cathsim_dmc.registry import RANDOM_AORTA  # noqa: F401  (the name's one home; public here too)
+
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
 DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale", "obliquity_deg",
                      "obliquity_range_deg")

@@ -7,7 +7,7 @@ import cathsim_dmc  # noqa: F401,E402
 
 # Composing conf/ needs the config schemas in Hydra's ConfigStore, as the tools register them
 # before they compose (cathsim_dmc/cli/_common.py); tests compose conf/ directly too.
-from cathsim_dmc.config import register_schemas  # noqa: E402
+from cathsim_dmc.config_tools import register_schemas  # noqa: E402
 
 register_schemas()
 

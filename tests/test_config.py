@@ -11,7 +11,7 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from cathsim_dmc import config
+from cathsim_dmc import config, config_tools
 from cathsim_dmc.paths import conf_root
 
 CATHSIM_TRAIN = str(Path(sys.executable).parent / "cathsim-train")  # the installed console script
@@ -76,14 +76,14 @@ def _effective(group, option) -> dict:
     body = _yaml(group, option)
     values = {}
     for parent in body.pop("defaults", []):
-        if parent == config.SCHEMA:
-            values.update(_schema_defaults(config.GROUP_SCHEMAS[group]))
+        if parent == config_tools.SCHEMA:
+            values.update(_schema_defaults(config_tools.GROUP_SCHEMAS[group]))
         elif parent != "_self_":
             values.update(_effective(group, parent))
     return {**values, **body}
 
 
-GROUP_OPTIONS = [(group, path.stem) for group in config.GROUP_SCHEMAS
+GROUP_OPTIONS = [(group, path.stem) for group in config_tools.GROUP_SCHEMAS
                  for path in sorted((conf_root() / group).glob("*.yaml"))]
 
 
@@ -91,8 +91,8 @@ GROUP_OPTIONS = [(group, path.stem) for group in config.GROUP_SCHEMAS
 def test_each_option_file_sets_only_what_differs_from_what_it_extends(group, option):
     body = _yaml(group, option)
     parents = [p for p in body.pop("defaults", []) if p != "_self_"]
-    assert parents and parents[0] in (config.SCHEMA, *[o for g, o in GROUP_OPTIONS if g == group])
-    inherited = (_schema_defaults(config.GROUP_SCHEMAS[group]) if parents[0] == config.SCHEMA
+    assert parents and parents[0] in (config_tools.SCHEMA, *[o for g, o in GROUP_OPTIONS if g == group])
+    inherited = (_schema_defaults(config_tools.GROUP_SCHEMAS[group]) if parents[0] == config_tools.SCHEMA
                  else _effective(group, parents[0]))
     restated = {key: value for key, value in body.items() if inherited.get(key) == value and key != "name"}
     assert not restated, f"{group}/{option}.yaml restates defaults it inherits: {restated}"
@@ -185,7 +185,7 @@ def test_an_old_run_config_has_its_moved_keys_translated_and_its_inert_removed_k
         cfg = config.upgrade_saved_config(old)
     assert cfg.experimental.normalize_observations is True and "normalize_observations" not in cfg.trainer
     assert "bc_filter" not in cfg.demos and "aim_weight" not in cfg.reward
-    config.validate(cfg)
+    config_tools.validate(cfg)
     warnings = [r.getMessage() for r in caplog.records]
     assert len(warnings) == 1
     for key in config.REMOVED:
@@ -239,7 +239,6 @@ def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(t
 
 
 def test_the_image_keys_the_schema_accepts_are_the_students():
-    from cathsim_dmc import config_tools
     from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE
 
     assert set(config_tools.IMAGE_KEYS) == set(PRESET_FOR_IMAGE)
@@ -250,5 +249,5 @@ def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
     from cathsim_dmc.config_tools import TOOL_SCHEMAS
 
     cfg = OmegaConf.create(_compose(tool))
-    config.validate(cfg, tool)
+    config_tools.validate(cfg, tool)
     assert set(cfg) - {"hydra"} == {spec.name for spec in dataclasses.fields(TOOL_SCHEMAS[tool])}

@@ -14,6 +14,21 @@ def test_every_pair_is_registered():
         assert env_id(task, aorta) in gymnasium.registry
 
 
+def test_a_random_arch_has_an_id_of_its_own():
+    env = gymnasium.make("cathsim_dmc/bca-random-v0", aorta_params={"pool_size": 1})
+    _, info = env.reset(seed=0)
+    assert env.spec.id == "cathsim_dmc/bca-random-v0" and info["aorta"].startswith("random")
+    env.close()
+
+
+def test_an_id_cannot_be_made_into_another_environment():
+    # gymnasium.make's keywords would leave spec.id naming the id's own (task, aorta)
+    with pytest.raises(ValueError, match="use gymnasium.make\\('cathsim_dmc/bca-type2-v0'\\)"):
+        gymnasium.make("cathsim_dmc/bca-type1-v0", aorta="type2")
+    with pytest.raises(ValueError, match="use CathSimEnv\\(task='bca', aorta='/a/folder'\\)"):
+        gymnasium.make("cathsim_dmc/bca-type1-v0", aorta="/a/folder")
+
+
 def test_action_space_is_the_tasks_action_spec():
     env = CathSimEnv("bca", "type1")
     spec = env.dm_env.action_spec()

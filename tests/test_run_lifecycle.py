@@ -153,7 +153,7 @@ def test_the_default_cadence_resumes_a_run_killed_at_a_random_step(tmp_path):
 def test_an_image_preset_takes_its_measured_recipe_unless_algo_is_given():
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.config import register_schemas
+    from cathsim_dmc.config_tools import register_schemas
     from cathsim_dmc.paths import conf_root
 
     register_schemas()

@@ -95,7 +95,7 @@ def check_composes(config_name: str, argv: Sequence[str]) -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from cathsim_dmc.config import check_known_keys, register_schemas, tool_schemas, validate
+    from cathsim_dmc.config_tools import check_known_keys, register_schemas, tool_schemas, validate
     from cathsim_dmc.paths import conf_root
 
     register_schemas()
@@ -161,7 +161,7 @@ def _run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Calla
                paths_allowed: Sequence[str] = ()):
     import hydra
 
-    from cathsim_dmc.config import register_schemas
+    from cathsim_dmc.config_tools import register_schemas
     from cathsim_dmc.paths import conf_root
 
     register_schemas()  # conf/ composes on them

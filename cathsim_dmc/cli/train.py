@@ -25,7 +25,8 @@ def run(cfg) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
-    from cathsim_dmc.config import upgrade_saved_config, validate
+    from cathsim_dmc.config import upgrade_saved_config
+    from cathsim_dmc.config_tools import validate
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
