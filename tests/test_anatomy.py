@@ -41,7 +41,7 @@ _cache = {}
 
 
 def shipped(name):
-    """Loaded asset, its HullSet and its validation report (computed once per session)."""
+    """Loaded asset, its HullSet and its validation report (computed once per test run)."""
     if name not in _cache:
         asset = load_asset(ASSETS / name)
         hulls = HullSet(asset.hulls)
