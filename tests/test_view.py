@@ -12,11 +12,11 @@ from cathsim_dmc.trajectory import TrajectoryRecorder
 def test_replay_reproduces_the_recording():
     env = CathSimEnv(task="bca", aorta="type1", max_steps=100)
     recorder = TrajectoryRecorder("bca", "type1", env.task.target_position_m, policy="human")
-    session = TeleopSession(env, recorder, seed=3)
+    teleop = TeleopSession(env, recorder, seed=3)
     for tick, key in enumerate([KEY_UP] + [None] * 9 + [KEY_R, KEY_UP, KEY_LEFT] + [None] * 12):
         if key is not None:
-            session.press(key)
-        session.tick()
+            teleop.press(key)
+        teleop.tick()
     arrays = recorder.arrays()
     assert len(episode_actions(arrays, 1)) > 0
     assert replay(env, arrays, episode=1, seed=3) < 1e-6
