@@ -116,6 +116,13 @@ class DemosConfig:
     takeover_rounds: int = _count(0)
     takeover_episodes: int = _count(20, minimum=1)  # episodes per round
     takeover_max_student_steps: int = _count(200)  # the expert takes over at a step drawn from 0..this
+    # rounds of expert labels after pre-training (DAgger; 0: none): the actor drives
+    # dagger_episodes episodes, the expert labels every state it reaches with its own
+    # action, and the actor is re-trained (pretrain_actor_steps) on the demonstrations and
+    # all labels so far; the cloning term (bc_weight) then covers the labels' states too
+    dagger_rounds: int = _count(0)
+    dagger_episodes: int = _count(50, minimum=1)
+    dagger_capacity: int = _count(200_000, minimum=1)  # most expert labels kept
     path: Optional[str] = None         # a cathsim-collect folder to take them from instead of recording the expert
 
 

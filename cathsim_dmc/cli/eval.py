@@ -39,6 +39,9 @@ def evaluate(cfg) -> dict:
         # A deliberate transfer test: the agent under other solver settings than it was
         # trained with (it records its own in policy.json, and those win otherwise).
         kwargs["physics"] = cfg.task.physics
+    for key in ("tracking_noise_m", "registration_error_m"):
+        if checkpoint and explicit_override(f"obs.{key}"):  # a robustness test: the roadmap's noise
+            kwargs[key] = cfg.obs[key]
     env = CathSimEnv(**kwargs)
     name = Path(str(cfg.policy)).name if checkpoint else str(cfg.policy)
     try:
