@@ -25,7 +25,7 @@ def evaluate(cfg) -> dict:
     check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)
     seed = check_number("seed", cfg.seed, 0, whole=True)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    policy = make_policy(str(cfg.policy), seed=seed)
+    policy = make_policy(str(cfg.policy), seed=seed, task=cfg.task.target)
     checkpoint = isinstance(policy, CheckpointPolicy)
     if checkpoint:
         print(f"evaluating {policy.path}")
