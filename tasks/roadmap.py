@@ -17,7 +17,7 @@ base of the tip curve, x towards the tip's bend (the side the angled tip points 
 completing the right-handed frame. Lengths are in centimetres. In order:
 
 * the roadmap's points at `AHEAD_MM` past the point nearest the tip, relative to the tip
-  (3 each; the points past the target collapse onto it);
+  (3 each; past the target the roadmap runs on along the branch's axis for 30 mm);
 * the target relative to the tip (3);
 * the tip relative to the base of its curve (3: its bend and how straight it is);
 * the lumen radius at the nearest point and at the target (2);
@@ -86,7 +86,9 @@ class RoadmapTracker:
             s, outside = line.locate(tip, self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
         self._s = s
         end = line.length_m
-        ahead = np.array([line.at(min(s + d * 1e-3, end)) for d in AHEAD_MM]) - tip
+        # Past the target the roadmap runs on along the branch (the line's extension): near
+        # the target the points still show the branch's axis, which the last turn needs.
+        ahead = np.array([line.at(s + d * 1e-3) for d in AHEAD_MM]) - tip
         parts = [
             (ahead @ frame.T).ravel() / CM,
             frame @ (line.at(end) - tip) / CM,
