@@ -137,6 +137,8 @@ class TrainerConfig:
     # steps between deterministic evaluations (TensorBoard, evaluations.jsonl, best.zip; 0: none)
     eval_every: int = _count(1000)
     eval_episodes: int = _count(10, minimum=1)  # of each periodic evaluation (and the final one, if not below)
+    # also evaluate the pre-trained policy before the first step, so that it competes for best.zip
+    eval_at_start: bool = False
     final_eval_episodes: Optional[int] = _count(20, minimum=1)  # of the final report (null: eval_episodes)
     # steps between checkpoints; null: with every periodic evaluation (eval_every; 1000 steps
     # without one), so a killed run resumes from its last evaluation; 0: only at the end

@@ -122,6 +122,22 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     assert (tmp_path / "checkpoints" / "best.zip").is_file()
 
 
+def test_eval_at_start_scores_the_pre_trained_policy_before_the_first_step(tmp_path):
+    from cathsim_dmc.rl import train as training
+
+    algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
+    trainer = dict(total_timesteps=20, eval_every=10, eval_episodes=1, eval_at_start=True, checkpoint_every=0,
+                   progress_bar=False, video=False)
+    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
+    try:
+        training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1",
+                       make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5))
+    finally:
+        env.close()
+    records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [0, 10, 20]
+
+
 def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_the_best(tmp_path):
     """trainer.eval_every: every evaluation resets episode i with seed 20_000 + seed + i,
     writes a line of evaluations.jsonl, and best.json holds the best evaluation (success

@@ -225,7 +225,8 @@ def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, mak
             # the report is not scored on the episodes the best checkpoint was chosen on, and
             # apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
             built_in.append(PeriodicEvaluation(make_eval_env(), trainer["eval_every"], trainer["eval_episodes"],
-                                               20_000 + seed, run_dir=run_dir))
+                                               20_000 + seed, run_dir=run_dir,
+                                               evaluate_at_start=trainer["eval_at_start"]))
         if trainer["progress_bar"]:
             built_in.append(Progress(total))
         model.learn(total_timesteps=remaining, callback=CallbackList([*built_in, *(callbacks or [])]),
