@@ -145,11 +145,19 @@ def trained_env_options(model_path, env_options: dict | None) -> dict:
     return options
 
 
-def make_policy(name: str, seed: int = 0):
-    """A built-in policy by name (`cathsim_dmc.policies.BUILTIN_POLICIES`), or a trained
-    agent by the path of its checkpoint or run folder."""
+def make_policy(name: str, seed: int = 0, task: str | None = None):
+    """A built-in policy by name (`cathsim_dmc.policies.BUILTIN_POLICIES`), the shipped
+    navigator for `task` ("pretrained", `cathsim_dmc.pretrained`), or a trained agent by
+    the path of its checkpoint or run folder."""
+    from cathsim_dmc.pretrained import PRETRAINED, load_pretrained
+
     if name in BUILTIN_POLICIES:
         return make_builtin_policy(name, seed=seed)
+    if name == PRETRAINED and not Path(name).exists():
+        if task is None:
+            raise ValueError("policy=pretrained needs the task (bca or lcca) it navigates to")
+        return load_pretrained(task)
     if Path(name).exists():
         return load_checkpoint_policy(name)
-    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)} nor a checkpoint path")
+    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, "
+                     f"{PRETRAINED!r}, nor a checkpoint path")

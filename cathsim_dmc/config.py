@@ -116,6 +116,13 @@ class DemosConfig:
     takeover_rounds: int = _count(0)
     takeover_episodes: int = _count(20, minimum=1)  # episodes per round
     takeover_max_student_steps: int = _count(200)  # the expert takes over at a step drawn from 0..this
+    # rounds of expert labels after pre-training (DAgger; 0: none): the actor drives
+    # dagger_episodes episodes, the expert labels every state it reaches with its own
+    # action, and the actor is re-trained (pretrain_actor_steps) on the demonstrations and
+    # all labels so far; the cloning term (bc_weight) then covers the labels' states too
+    dagger_rounds: int = _count(0)
+    dagger_episodes: int = _count(50, minimum=1)
+    dagger_capacity: int = _count(200_000, minimum=1)  # most expert labels kept
     path: Optional[str] = None         # a cathsim-collect folder to take them from instead of recording the expert
 
 
@@ -130,6 +137,8 @@ class TrainerConfig:
     # steps between deterministic evaluations (TensorBoard, evaluations.jsonl, best.zip; 0: none)
     eval_every: int = _count(1000)
     eval_episodes: int = _count(10, minimum=1)  # of each periodic evaluation (and the final one, if not below)
+    # also evaluate the pre-trained policy before the first step, so that it competes for best.zip
+    eval_at_start: bool = False
     final_eval_episodes: Optional[int] = _count(20, minimum=1)  # of the final report (null: eval_episodes)
     # steps between checkpoints; null: with every periodic evaluation (eval_every; 1000 steps
     # without one), so a killed run resumes from its last evaluation; 0: only at the end

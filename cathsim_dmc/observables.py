@@ -36,10 +36,14 @@ class ObservationSettings:
     # The top camera turned this many degrees towards the patient's left about the
     # vertical axis (left anterior oblique; negative: right anterior oblique); 0 = AP.
     lao_deg: float = 0.0
+    # The roadmap observation's noise (tasks/roadmap.py): the tracked tip's, per axis and
+    # step, and the roadmap's registration error, one offset per episode; metres (std).
+    tracking_noise_m: float = 0.0
+    registration_error_m: float = 0.0
 
 
 # What a preset can enable (the task has a few more, enabled one by one as extra observations).
-PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel")
+PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel", "roadmap", "robot_state")
 
 
 def load_presets(folder) -> dict:
@@ -47,7 +51,8 @@ def load_presets(folder) -> dict:
 
     A preset file is the one definition of its preset, for the command-line tools (Hydra's
     `obs=` group) and the Python API (`tasks.load(obs=...)`) alike: `name`, the
-    `observables` it enables, and optionally `renderer`, `style`, `image_size`, `lao_deg`.
+    `observables` it enables, and optionally `renderer`, `style`, `image_size`, `lao_deg`,
+    `tracking_noise_m`, `registration_error_m`.
     """
     import yaml
 
@@ -58,7 +63,8 @@ def load_presets(folder) -> dict:
         if spec.get("name") != path.stem or not spec.get("observables") or unknown:
             raise ValueError(f"{path}: a preset needs name: {path.stem} and observables from "
                              f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})")
-        options = {key: spec[key] for key in ("renderer", "style", "image_size", "lao_deg")
+        options = {key: spec[key] for key in ("renderer", "style", "image_size", "lao_deg",
+                                                 "tracking_noise_m", "registration_error_m")
                    if spec.get(key) is not None}
         presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
     return presets
@@ -85,6 +91,8 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
                          f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}")
     if not settings.noise_std >= 0:
         raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
+    for key in ("tracking_noise_m", "registration_error_m"):
+        check_number(key, getattr(settings, key), 0)  # a standard deviation in metres
     if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
         raise ValueError(f"lao_deg={settings.lao_deg!r} must be between -90 and 90 (degrees; 0 = AP)")
     return settings

@@ -77,6 +77,8 @@ def build_task(
     style: str | None = None,
     noise_std: float | None = None,
     lao_deg: float | None = None,
+    tracking_noise_m: float | None = None,
+    registration_error_m: float | None = None,
     **task_kwargs,
 ) -> Navigate:
     """The Navigate task for a (target, aorta) pair with entity parameters overridden.
@@ -87,6 +89,8 @@ def build_task(
     `noise_std` (grey levels) override the observation preset's image settings; `lao_deg`
     turns the top camera (images and videos) into a left anterior oblique view of that
     many degrees (negative: right anterior oblique; 0, the presets' default: AP).
+    `tracking_noise_m` and `registration_error_m` (standard deviations, metres) override
+    the `roadmap` observation's noise (`cathsim_dmc.tasks.roadmap`).
     `physics="fast"` (default), `"fast_field"` or `"accurate"` picks the physics settings (`Navigate`).
     """
     validate(task, aorta, obs)
@@ -103,7 +107,8 @@ def build_task(
         aorta = generated_asset(dict(aorta_params or {}))
     elif aorta_params:
         raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
-    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std, lao_deg=lao_deg)
+    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std, lao_deg=lao_deg,
+                         tracking_noise_m=tracking_noise_m, registration_error_m=registration_error_m)
     settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).

@@ -172,7 +172,8 @@ class Navigate(composer.Task):
                              f"({-depth_m * 1e3:.1f} mm or more); `cathsim-aorta validate {aorta.asset.path}` "
                              f"lists the asset's problems")
         self.set_timesteps(control_timestep=control_timestep_s, physics_timestep=guidewire.physics_timestep_s)
-        self._task_observables, self._top_view = task_observables(self, observations, self._extra_observations)
+        self._task_observables, self._top_view, self._roadmap = task_observables(
+            self, observations, self._extra_observations)
 
         self._step_count = 0
         self._success = False
@@ -273,6 +274,7 @@ class Navigate(composer.Task):
         measurements.forget()
         measurements.set_start(physics, insertion)
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
+        self._roadmap.start(random_state)
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])

@@ -12,6 +12,7 @@ from dm_control.composer.observation import observable
 
 from cathsim_dmc.config import EXTRA_OBSERVATIONS  # noqa: F401  (the names' one home; public here too)
 from cathsim_dmc.observables import ObservationSettings, TopView, image_noise
+from cathsim_dmc.tasks.roadmap import RoadmapTracker
 
 
 def check_extra_observations(extra_observations) -> tuple:
@@ -22,13 +23,16 @@ def check_extra_observations(extra_observations) -> tuple:
     return tuple(extra_observations)
 
 
-def task_observables(task, settings: ObservationSettings, extra_observations: tuple = ()) -> tuple[dict, TopView]:
-    """(name -> observable, the `TopView` drawing the images) for `task` (a `Navigate`),
-    those of `settings` and `extra_observations` enabled."""
+def task_observables(task, settings: ObservationSettings,
+                     extra_observations: tuple = ()) -> tuple[dict, TopView, RoadmapTracker]:
+    """(name -> observable, the `TopView` drawing the images, the `RoadmapTracker` of the
+    roadmap observation) for `task` (a `Navigate`), those of `settings` and
+    `extra_observations` enabled."""
     robot, guidewire = task.robot, task.guidewire
     wire_joints = guidewire.joints
     top_view = TopView(settings.image_size, renderer=settings.renderer, wire=guidewire,
                        vessel_geom_id=task.aorta.visual_geom_id)
+    roadmap = RoadmapTracker(task, settings.tracking_noise_m, settings.registration_error_m)
 
     def catheter_features():
         # With a catheter: its tip's offset behind the wire's tip over the robot's stroke.
@@ -44,6 +48,12 @@ def task_observables(task, settings: ObservationSettings, extra_observations: tu
             [robot.rate_features(physics), physics.bind(wire_joints).qvel])),
         "wire_slack": observable.Generic(lambda physics: np.array([task.slack_m(physics)])),
         "drive_force": observable.Generic(lambda physics: np.array([robot.drive_force_n(physics)])),
+        # What the robot's encoders measure: its pose and rates (joint_pos's and joint_vel's
+        # first entries) and the catheter's offset; not the wire's shape.
+        "robot_state": observable.Generic(lambda physics: np.concatenate(
+            [robot.pose_features(physics), robot.rate_features(physics), catheter_features()])),
+        # The registered roadmap around the tracked tip, in the tip's frame (tasks/roadmap.py).
+        "roadmap": observable.Generic(roadmap.features),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         "guidewire_mask": observable.Generic(top_view.mask),
         "tip_position": observable.MJCFFeature("xpos", guidewire.tip_site),
@@ -55,4 +65,4 @@ def task_observables(task, settings: ObservationSettings, extra_observations: tu
         obs_item.enabled = name in settings.enabled or name in extra_observations
     if settings.noise_std > 0:
         obs["pixels"].corruptor = image_noise(settings.noise_std)
-    return obs, top_view
+    return obs, top_view, roadmap

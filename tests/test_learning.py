@@ -67,6 +67,47 @@ def test_takeover_demonstrations_start_where_the_student_left_the_wire(env):
     assert demos.observations["joint_pos"][0, 0] > 0.01
 
 
+def test_expert_labels_cover_every_state_the_student_reaches(env):
+    """DAgger's data: the student drives, the expert labels each state it reaches."""
+    from cathsim_dmc.experts import CenterlineExpert
+    from cathsim_dmc.rl.demos import expert_labels
+
+    short = CathSimEnv("bca", "type1", obs="internal", max_steps=15)
+    try:
+        student_action = np.array([1.0, 0.0], np.float32)
+        labels = expert_labels(short, lambda obs: student_action, episodes=2, seed=7)
+        assert len(labels) == 30 and labels.episodes == 2 and labels.successes == 0
+        assert labels.observations["joint_pos"].shape == (30, short.observation_space["joint_pos"].shape[0])
+        # The first label is what the expert does at the start, where the student's episode began.
+        obs, _ = short.reset(seed=7)
+        np.testing.assert_allclose(labels.actions[0], CenterlineExpert()(obs, short), atol=1e-6)
+        np.testing.assert_array_equal(labels.observations["joint_pos"][0], obs["joint_pos"])
+        # The student's insertion is taken, not the expert's: the wire goes in at full speed.
+        assert labels.observations["joint_pos"][14, 0] > labels.observations["joint_pos"][0, 0] + 0.01
+    finally:
+        short.close()
+
+
+def test_cloning_batches_draw_from_demonstrations_and_labels_by_their_sizes(env):
+    from cathsim_dmc.rl.demos import DemoReplayBuffer, Labels, add_labels
+
+    buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu", label_capacity=1000)
+    obs = {k: np.zeros((1,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
+    for _ in range(100):  # demonstrations act [1, 1]
+        buffer.demos.add(obs, obs, np.ones((1, 2), np.float32), np.zeros(1, np.float32), np.array([False]),
+                         [{"TimeLimit.truncated": False}])
+    _, actions = buffer.cloning_batch(64)
+    assert float(actions.min()) == 1.0  # no labels yet: all from the demonstrations
+    stacked = {k: np.zeros((300,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
+    add_labels(buffer, Labels(stacked, -np.ones((300, 2), np.float32), 1, 0))  # labels act [-1, -1]
+    assert buffer.label_count() == 300
+    np.random.seed(0)
+    share = np.mean([float((buffer.cloning_batch(256)[1][:, 0] < 0).float().mean()) for _ in range(20)])
+    assert share == pytest.approx(0.75, abs=0.02)
+    # The critic's batches never see a label (they are not transitions).
+    assert float(buffer.sample(64).actions.min()) == 1.0
+
+
 def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     from stable_baselines3 import SAC
 
@@ -79,6 +120,22 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
         assert keep_if_best(model, tmp_path, step, success, ret) is expected
     assert best_record(tmp_path) == {"step": 5000, "success_rate": 0.6, "mean_return": -9.0}
     assert (tmp_path / "checkpoints" / "best.zip").is_file()
+
+
+def test_eval_at_start_scores_the_pre_trained_policy_before_the_first_step(tmp_path):
+    from cathsim_dmc.rl import train as training
+
+    algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
+    trainer = dict(total_timesteps=20, eval_every=10, eval_episodes=1, eval_at_start=True, checkpoint_every=0,
+                   progress_bar=False, video=False)
+    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
+    try:
+        training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1",
+                       make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5))
+    finally:
+        env.close()
+    records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [0, 10, 20]
 
 
 def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_the_best(tmp_path):
@@ -308,3 +365,40 @@ def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
                for total in (40, 80)}
     assert weights[40].keys() == weights[80].keys()
     assert all(torch.equal(weights[40][k], weights[80][k]) for k in weights[40])
+
+
+def test_dagger_rounds_add_labels_that_a_resumed_run_reads_back(tmp_path):
+    """demos.dagger_rounds: the labels join the buffer, are saved in the checkpoint folder,
+    and a resumed run (which does not pre-train again) reads them back for the cloning term."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from cathsim_dmc.rl import train as training
+
+    algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
+    demos = dict(episodes=1, pretrain_actor_steps=5, dagger_rounds=2, dagger_episodes=1, bc_weight=0.5)
+    counts = []
+
+    class Count(BaseCallback):
+        def _on_training_start(self):
+            counts.append(self.model.replay_buffer.label_count())
+
+        def _on_step(self):
+            return True
+
+    def run(total, resume):
+        env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 12})
+        make = lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=12)  # noqa: E731
+        trainer = dict(total_timesteps=total, eval_every=0, progress_bar=False, video=False, checkpoint_every=0)
+        try:
+            training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1", resume=resume,
+                           demos=demos, make_demo_env=make, callbacks=[Count()])
+        finally:
+            env.close()
+
+    run(20, resume=False)
+    saved = tmp_path / "checkpoints" / training.LABELS_FILE
+    with np.load(saved) as data:
+        assert data["action"].shape == (24, 2)  # two rounds of one 12-step episode
+        assert data["obs_joint_pos"].shape[0] == 24
+    run(40, resume=True)
+    assert counts == [24, 24]

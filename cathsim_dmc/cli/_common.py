@@ -200,7 +200,7 @@ def explicit_override(key: str) -> bool:
 # Options that change what an agent sees or drives. A checkpoint records them (policy.json)
 # and is evaluated, and replayed for datasets, with them whatever the command line says
 # (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
-IMAGE_OPTIONS = ("renderer", "style", "lao_deg")
+IMAGE_OPTIONS = ("renderer", "style", "lao_deg", "tracking_noise_m", "registration_error_m")
 AGENT_OPTIONS = ("extra_observations", "physics", "catheter")
 
 
@@ -239,8 +239,9 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
             raise ValueError("obs.extra is now experimental.extra_observations (cathsim-train)")
         kwargs["obs"] = obs.name
         kwargs.update({key: obs[key] for key in IMAGE_OPTIONS if obs.get(key) is not None})
-        if not kwargs.get("lao_deg"):  # the AP view: recorded as before the option existed
-            kwargs.pop("lao_deg", None)
+        for key in ("lao_deg", "tracking_noise_m", "registration_error_m"):
+            if not kwargs.get(key):  # the AP view, no noise: recorded as before the options existed
+                kwargs.pop(key, None)
     experimental = cfg.get("experimental")
     if experimental is not None and experimental.get("extra_observations"):
         kwargs["extra_observations"] = tuple(experimental.extra_observations)

@@ -25,7 +25,7 @@ def evaluate(cfg) -> dict:
     check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)
     seed = check_number("seed", cfg.seed, 0, whole=True)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    policy = make_policy(str(cfg.policy), seed=seed)
+    policy = make_policy(str(cfg.policy), seed=seed, task=cfg.task.target)
     checkpoint = isinstance(policy, CheckpointPolicy)
     if checkpoint:
         print(f"evaluating {policy.path}")
@@ -39,6 +39,9 @@ def evaluate(cfg) -> dict:
         # A deliberate transfer test: the agent under other solver settings than it was
         # trained with (it records its own in policy.json, and those win otherwise).
         kwargs["physics"] = cfg.task.physics
+    for key in ("tracking_noise_m", "registration_error_m"):
+        if checkpoint and explicit_override(f"obs.{key}"):  # a robustness test: the roadmap's noise
+            kwargs[key] = cfg.obs[key]
     env = CathSimEnv(**kwargs)
     name = Path(str(cfg.policy)).name if checkpoint else str(cfg.policy)
     try:

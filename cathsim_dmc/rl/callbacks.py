@@ -150,6 +150,9 @@ class PeriodicEvaluation(EvalCallback):
     :param n_eval_episodes: episodes of each evaluation
     :param seed: the seed of each evaluation's first episode
     :param run_dir: the run folder (None: log only)
+    :param evaluate_at_start: also evaluate before the first step of a new run: the
+        pre-trained policy competes for best.zip, so an online phase that loses what
+        pre-training gave cannot lose it from the run's result
     :param callback_on_new_best: as EvalCallback's: run when an evaluation is the new best
     :param callback_after_eval: as EvalCallback's: run after every evaluation
     :param verbose: as EvalCallback's
@@ -157,13 +160,14 @@ class PeriodicEvaluation(EvalCallback):
 
     def __init__(self, eval_env, eval_freq: int, n_eval_episodes: int, seed: int, run_dir: Path | None = None,
                  callback_on_new_best: BaseCallback | None = None, callback_after_eval: BaseCallback | None = None,
-                 verbose: int = 0):
+                 verbose: int = 0, evaluate_at_start: bool = False):
         super().__init__(eval_env, callback_on_new_best=callback_on_new_best, callback_after_eval=callback_after_eval,
                          n_eval_episodes=int(n_eval_episodes), eval_freq=int(eval_freq), deterministic=True,
                          verbose=verbose, warn=False)
         self.episode_env = eval_env  # EvalCallback keeps it wrapped in a DummyVecEnv; episodes run on it directly
         self.seed = int(seed)
         self.run_dir = None if run_dir is None else Path(run_dir)
+        self.evaluate_at_start = bool(evaluate_at_start)
         self.best_success_rate = self.last_success_rate = -np.inf
         self._last_evaluated = 0
         self._start_wall = 0.0
@@ -183,6 +187,8 @@ class PeriodicEvaluation(EvalCallback):
         best = best_record(self.run_dir) if self.run_dir is not None else None
         if best is not None:  # a resumed run competes with the best it already kept
             self.best_success_rate, self.best_mean_reward = best["success_rate"], best["mean_return"]
+        if self.evaluate_at_start and self.eval_freq > 0 and self.num_timesteps == 0:
+            self._evaluate()  # the pre-trained policy (no averaged actor exists before the first update)
 
     def _on_step(self) -> bool:
         # Counted in environment steps since the last evaluation, not in calls as

@@ -27,14 +27,22 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 class DemoReplayBuffer(DictReplayBuffer):
     """A DictReplayBuffer whose batches take `demo_share` of their samples from demonstrations.
 
+    It can also hold expert labels (`labels`): states the agent reached, each with the
+    action the expert would have taken there (DAgger's data, `expert_labels`). They are not
+    transitions (the expert's action was not taken), so only behavioural cloning reads them
+    (`cloning_batch`); the critic never does.
+
     Args (beyond DictReplayBuffer's):
       demo_share: fraction of each batch drawn from the demonstrations (0.5 in RLPD).
       demo_capacity: most demonstration transitions kept.
+      label_capacity: most expert labels kept (0: none).
     """
+
+    labels = None  # buffers pickled before expert labels existed have none
 
     def __init__(self, buffer_size, observation_space, action_space, device="auto", n_envs: int = 1,
                  optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
-                 demo_share: float = 0.5, demo_capacity: int = 20_000):
+                 demo_share: float = 0.5, demo_capacity: int = 20_000, label_capacity: int = 0):
         if not 0.0 <= demo_share <= 1.0:
             raise ValueError(f"demo_share={demo_share!r} must be in [0, 1]")
         super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
@@ -43,6 +51,26 @@ class DemoReplayBuffer(DictReplayBuffer):
         self.demo_share = float(demo_share)
         self.demos = DictReplayBuffer(max(int(demo_capacity), 1), observation_space, action_space, device=device,
                                       n_envs=1, handle_timeout_termination=handle_timeout_termination)
+        self.labels = None
+        if int(label_capacity) > 0:
+            self.labels = DictReplayBuffer(int(label_capacity), observation_space, action_space, device=device,
+                                           n_envs=1, handle_timeout_termination=False)
+
+    def label_count(self) -> int:
+        return 0 if self.labels is None else self.labels.size()
+
+    def cloning_batch(self, batch_size: int, env=None) -> tuple[dict, torch.Tensor]:
+        """(observations, expert actions) for behavioural cloning: `batch_size` samples
+        drawn uniformly from the demonstrations' states and the expert labels together."""
+        labels = self.label_count()
+        if labels == 0:
+            data = self.demos.sample(batch_size, env)
+            return data.observations, data.actions
+        from_labels = int(np.random.binomial(batch_size, labels / (labels + self.demos.size())))
+        parts = [buffer.sample(n, env) for buffer, n in ((self.demos, batch_size - from_labels),
+                                                          (self.labels, from_labels)) if n > 0]
+        observations = {k: torch.cat([p.observations[k] for p in parts]) for k in parts[0].observations}
+        return observations, torch.cat([p.actions for p in parts])
 
     def demo_batch_size(self, batch_size: int) -> int:
         """How many of `batch_size` samples come from the demonstrations."""
@@ -133,6 +161,51 @@ def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student
         return act
 
     return _rollouts(env, episodes, seed, episode_policy, progress)
+
+
+@dataclass
+class Labels:
+    """States an agent reached, each with the expert's action there (DAgger's data)."""
+
+    observations: dict
+    actions: np.ndarray
+    episodes: int
+    successes: int  # episodes in which the agent (not the expert) reached the target
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None) -> Labels:
+    """DAgger's data (Ross et al., 2011): `student(observation)` drives `episodes` episodes
+    (seeds `seed`, `seed + 1`, ...) and the scripted expert, asked at every step, labels
+    each state with the action it would take there. The expert follows the student's
+    episode as if it were its own (its back-off and end-game counters run on), so a label
+    is what the expert does from that state in that situation. `progress` labels a
+    progress bar (None: none)."""
+    from cathsim_dmc.experts import CenterlineExpert
+
+    expert = CenterlineExpert()
+    observations, actions = [], []
+
+    def act(obs, env, step):
+        observations.append(obs)
+        actions.append(np.asarray(expert(obs, env), dtype=np.float32))
+        return student(obs), False
+
+    driven = _rollouts(env, episodes, seed, lambda: act, progress)
+    stacked = {k: np.stack([o[k] for o in observations]) for k in observations[0]} if observations else {}
+    return Labels(stacked, np.stack(actions) if actions else np.zeros((0, *env.action_space.shape), np.float32),
+                  driven.episodes, driven.successes)
+
+
+def add_labels(buffer: DemoReplayBuffer, labels: Labels) -> None:
+    """Store `labels` in the buffer's expert labels (the oldest go when it is full)."""
+    if buffer.labels is None:
+        raise ValueError("this buffer keeps no expert labels (label_capacity=0)")
+    for i in range(len(labels)):
+        obs = {k: v[i:i + 1] for k, v in labels.observations.items()}
+        buffer.labels.add(obs, obs, labels.actions[i:i + 1], np.zeros(1, np.float32), np.zeros(1, bool), [{}])
 
 
 def _rollouts(env, episodes: int, seed: int, make_policy, progress: str | None = None) -> Transitions:

@@ -42,12 +42,13 @@ def grow_replay_buffer(model, capacity: int) -> None:
     from cathsim_dmc.rl.demos import DemoReplayBuffer
 
     with_demos = isinstance(old, DemoReplayBuffer)
-    # A DemoReplayBuffer keeps its demonstrations (a buffer of their own) and its batch share.
+    # A DemoReplayBuffer keeps its demonstrations and expert labels (buffers of their own)
+    # and its batch share.
     extra = dict(demo_share=old.demo_share, demo_capacity=1) if with_demos else {}
     new = type(old)(capacity, old.observation_space, old.action_space, device=old.device, n_envs=old.n_envs,
                     handle_timeout_termination=old.handle_timeout_termination, **extra)
     if with_demos:
-        new.demos = old.demos
+        new.demos, new.labels = old.demos, getattr(old, "labels", None)
     rows = old.buffer_size if old.full else old.pos
     for name in ("observations", "next_observations"):
         source, target = getattr(old, name), getattr(new, name)

@@ -33,7 +33,9 @@ def pretrain_actor(model, steps: int, batch_size: int | None = None, progress: s
     """Behavioural cloning of the SAC actor on the demonstrations; returns the last loss.
 
     The loss is the squared error of the actor's deterministic action (tanh of the mean)
-    against the expert's action; the log standard deviation is left to SAC's entropy term.
+    against the expert's action, on the demonstrations' states and the expert labels
+    (`DemoReplayBuffer.cloning_batch`); the log standard deviation is left to SAC's
+    entropy term.
     `progress` labels a progress bar (None: none).
     """
     buffer = model.replay_buffer
@@ -42,9 +44,9 @@ def pretrain_actor(model, steps: int, batch_size: int | None = None, progress: s
     actor.set_training_mode(True)
     loss_value = float("nan")
     for _ in _steps(steps, progress):
-        data = buffer.demos.sample(batch_size, env=model._vec_normalize_env)
-        mean, _, _ = actor.get_action_dist_params(data.observations)
-        loss = torch.nn.functional.mse_loss(torch.tanh(mean), data.actions)
+        observations, actions = buffer.cloning_batch(batch_size, env=model._vec_normalize_env)
+        mean, _, _ = actor.get_action_dist_params(observations)
+        loss = torch.nn.functional.mse_loss(torch.tanh(mean), actions)
         actor.optimizer.zero_grad()
         loss.backward()
         actor.optimizer.step()
@@ -95,7 +97,9 @@ class SACfD(SAC):
     The actor's loss gains `bc_weight` x mean|Q| x the squared error between its
     deterministic action and the expert's, on every demonstration state of the batch
     (TD3+BC's term, Fujimoto and Gu, 2021): it keeps the actor near the expert even where
-    the critic overrates the actor's own action. With `bc_weight` 0 this is plain SAC.
+    the critic overrates the actor's own action. With expert labels in the buffer (DAgger's
+    states, `rl.demos.expert_labels`) the term is taken on as many states drawn from the
+    demonstrations and the labels together. With `bc_weight` 0 this is plain SAC.
 
     With `actor_average_tau` > 0 it also keeps an exponential moving average of the
     actor's weights (each update moves it `actor_average_tau` of the way to the current
@@ -201,10 +205,13 @@ class SACfD(SAC):
 
             q_pi = torch.cat(self.critic(data.observations, actions_pi), dim=1).min(dim=1, keepdim=True)[0]
             actor_loss = (ent_coef * log_prob - q_pi).mean()
-            demo_obs = {k: v[demo] for k, v in data.observations.items()}
+            if buffer.label_count():  # the cloning term also covers the expert labels' states
+                demo_obs, demo_actions = buffer.cloning_batch(n_demo, env=self._vec_normalize_env)
+            else:
+                demo_obs, demo_actions = {k: v[demo] for k, v in data.observations.items()}, data.actions[demo]
             mean, _, _ = self.actor.get_action_dist_params(demo_obs)
             deterministic = torch.tanh(mean)
-            bc_loss = ((deterministic - data.actions[demo]) ** 2).sum(dim=1).mean()
+            bc_loss = ((deterministic - demo_actions) ** 2).sum(dim=1).mean()
             # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
             # same whatever the reward's scale.
             loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss

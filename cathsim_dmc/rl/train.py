@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from cathsim_dmc import run_files
 from cathsim_dmc.config import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
@@ -92,6 +94,8 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
         with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos["bc_weight"]),
                           replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
                                                     demo_capacity=int(demos["capacity"])))
+        if int(demos["dagger_rounds"]) > 0:
+            with_demos["replay_buffer_kwargs"]["label_capacity"] = int(demos["dagger_capacity"])
     policy = LayerNormSACPolicy if algo["critic_layer_norm"] else "MultiInputPolicy"
     return SACfD(
         policy, env, **with_demos, actor_average_tau=float(algo["actor_average_tau"]),
@@ -210,7 +214,7 @@ def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, mak
 
     if _use_demos(demos):
         load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume,
-                            show_progress=trainer["progress_bar"])
+                            show_progress=trainer["progress_bar"], labels_path=run_dir / CHECKPOINT_DIR / LABELS_FILE)
     total, ckpt_dir = int(trainer["total_timesteps"]), run_dir / CHECKPOINT_DIR
     t0, remaining = time.perf_counter(), total - model.num_timesteps
     if remaining > 0:
@@ -221,7 +225,8 @@ def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, mak
             # the report is not scored on the episodes the best checkpoint was chosen on, and
             # apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
             built_in.append(PeriodicEvaluation(make_eval_env(), trainer["eval_every"], trainer["eval_episodes"],
-                                               20_000 + seed, run_dir=run_dir))
+                                               20_000 + seed, run_dir=run_dir,
+                                               evaluate_at_start=trainer["eval_at_start"]))
         if trainer["progress_bar"]:
             built_in.append(Progress(total))
         model.learn(total_timesteps=remaining, callback=CallbackList([*built_in, *(callbacks or [])]),
@@ -262,8 +267,62 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int, show_progress
         env.close()
 
 
+LABELS_FILE = "expert_labels.npz"  # in the checkpoint folder: a resumed run keeps its DAgger labels
+
+
+def _dagger_rounds(model, demos: dict, make_demo_env, seed: int, labels_path: Path | None,
+                   show_progress: bool = False) -> None:
+    """`demos["dagger_rounds"]` rounds of DAgger: the current actor drives, the expert labels
+    every state (`rl.demos.expert_labels`), the labels join the buffer's and the actor is
+    re-trained on demonstrations and labels for `pretrain_actor_steps`. The labels are
+    saved to `labels_path` for a resumed run."""
+    from cathsim_dmc.rl.callbacks import deterministic_policy
+    from cathsim_dmc.rl.demos import add_labels, expert_labels
+    from cathsim_dmc.rl.sacfd import pretrain_actor
+
+    env, student = make_demo_env(), deterministic_policy(model)
+    label = lambda text: text if show_progress else None  # noqa: E731  (a bar's label, or no bar)
+    try:
+        for round_index in range(int(demos["dagger_rounds"])):
+            t0 = time.perf_counter()
+            # Seeds apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
+            labels = expert_labels(env, student, int(demos["dagger_episodes"]),
+                                   seed=50_000 + 1000 * seed + 100 * round_index,
+                                   progress=label(f"DAgger round {round_index + 1}"))
+            add_labels(model.replay_buffer, labels)
+            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]),
+                                  progress=label(f"round {round_index + 1}: re-training the actor"))
+            log.info("DAgger round %d: the actor reached the target in %d of %d episodes; %d states labelled "
+                     "(%d in all); actor re-trained, action MSE %.4f; %.0f s", round_index + 1, labels.successes,
+                     labels.episodes, len(labels), model.replay_buffer.label_count(), loss,
+                     time.perf_counter() - t0)
+    finally:
+        env.close()
+    if labels_path is not None:
+        save_labels(model.replay_buffer, labels_path)
+
+
+def save_labels(buffer, path: Path) -> None:
+    """The buffer's expert labels as an .npz (observation keys prefixed obs_, and action)."""
+    n = buffer.label_count()
+    arrays = {f"obs_{k}": v[:n, 0] for k, v in buffer.labels.observations.items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, action=buffer.labels.actions[:n, 0], **arrays)
+
+
+def load_labels(buffer, path: Path) -> int:
+    """Expert labels saved by `save_labels` back into the buffer; returns how many."""
+    from cathsim_dmc.rl.demos import Labels, add_labels
+
+    with np.load(path) as data:
+        observations = {k[4:]: data[k] for k in data.files if k.startswith("obs_")}
+        labels = Labels(observations, data["action"], 0, 0)
+    add_labels(buffer, labels)
+    return len(labels)
+
+
 def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True,
-                        show_progress: bool = False) -> None:
+                        show_progress: bool = False, labels_path: Path | None = None) -> None:
     """Record the expert's episodes (or read them from `demos["path"]`) into the model's
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
     them; each stage is logged with its size, loss and time, and with `show_progress`
@@ -298,6 +357,9 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
                 normalizer.obs_rms[key].update(transitions.observations[key])
         log.info("demonstrations: %d expert episodes (%d reached the target), %d transitions, %.0f s",
                  transitions.episodes, transitions.successes, len(transitions), time.perf_counter() - t0)
+    if not pretrain and buffer.labels is not None and buffer.label_count() == 0 and labels_path is not None:
+        if labels_path.is_file():  # a resumed run: its DAgger labels, for the cloning term
+            log.info("expert labels: %d read from %s", load_labels(buffer, labels_path), labels_path)
     if pretrain:
         if int(demos["pretrain_actor_steps"]) > 0:
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]), progress=label("pre-training the actor"))
@@ -305,6 +367,8 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
                      int(demos["pretrain_actor_steps"]), loss)
         if int(demos["takeover_rounds"]) > 0:
             _takeover_rounds(model, demos, make_demo_env, seed, show_progress)
+        if int(demos["dagger_rounds"]) > 0:
+            _dagger_rounds(model, demos, make_demo_env, seed, labels_path, show_progress)
         if int(demos["critic_warmup_steps"]) > 0:
             loss = warm_up_critic(model, int(demos["critic_warmup_steps"]), progress=label("warming up the critic"))
             log.info("critic warmed up: %d steps, loss %.4f", int(demos["critic_warmup_steps"]), loss)

@@ -115,13 +115,13 @@ def enn_feature_fn(model, observation_keys):
     return features
 
 
-def collection_policy(name: str, seed: int):
+def collection_policy(name: str, seed: int, task: str | None = None):
     """(policy, feature_fn or None, label, image options, env options) for a built-in name or
     a checkpoint; a checkpoint's image and env options are the ones it was trained with."""
     from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.agents import CheckpointPolicy, make_policy
 
-    policy = make_policy(name, seed=seed)
+    policy = make_policy(name, seed=seed, task=task)
     if not isinstance(policy, CheckpointPolicy):
         return policy, None, name, {}, {}
     # The dataset records every modality; the agent sees only what it was trained on.
@@ -179,7 +179,7 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out={str(out_dir)!r} is a file; name a dataset folder (new, or one to continue)")
-    act, feature_fn, label, policy_images, policy_options = collection_policy(policy, seed)
+    act, feature_fn, label, policy_images, policy_options = collection_policy(policy, seed, task)
     images = {**(image_options or {}), **policy_images}
     # A trained agent drives with what it was trained with (insertion limit, extra
     # observations), as cathsim-eval evaluates it.

@@ -1,0 +1,100 @@
+"""The `roadmap` observation: the vessel roadmap around the tracked tip, in the tip's frame.
+
+What it assumes a real system has (docs/observations.md#roadmap):
+
+* a **roadmap**: the centerline from the access to the target, with its lumen radius,
+  segmented from the pre-operative CTA and registered to the patient (2-D/3-D
+  registration errs by `registration_error_m`: one offset of the whole roadmap per
+  episode);
+* the **tracked tip**: the wire's tip and the base of its curve in 3-D (an EM sensor in
+  the tip, or the wire reconstructed from biplane fluoroscopy), each with independent
+  Gaussian noise of `tracking_noise_m` per axis and step;
+* the robot's encoders (`robot_state`).
+
+The features are expressed in the tip's own frame, so that they read the same in every
+anatomy (Scarponi et al. 2024 call this shape invariance): z along the wire's shaft at the
+base of the tip curve, x towards the tip's bend (the side the angled tip points to), y
+completing the right-handed frame. Lengths are in centimetres. In order:
+
+* the roadmap's points at `AHEAD_MM` past the point nearest the tip, relative to the tip
+  (3 each; past the target the roadmap runs on along the branch's axis for 30 mm);
+* the target relative to the tip (3);
+* the tip relative to the base of its curve (3: its bend and how straight it is);
+* the lumen radius at the nearest point and at the target (2);
+* the remaining length along the roadmap to the target, in decimetres (1; negative past it);
+* how far the tip lies outside the roadmap's tube (1; negative inside: positive means a
+  wrong branch or the ascending aorta).
+
+The nearest point is tracked from step to step within a window along the line (as a
+navigation system would), so it cannot jump to a parallel stretch of vessel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cathsim_dmc.anatomy.paths import CenterlinePath, component_across
+
+AHEAD_MM = (0, 4, 8, 12, 16, 24, 32, 48)
+ROADMAP_SIZE = 3 * len(AHEAD_MM) + 3 + 3 + 2 + 1 + 1
+CM = 0.01
+# The nearest point is searched this far behind and ahead of the last one, in metres.
+TRACK_BACK_M, TRACK_AHEAD_M = 0.01, 0.03
+
+
+class RoadmapTracker:
+    """The roadmap features of one task (`features(physics)`), tracked over an episode."""
+
+    def __init__(self, task, tracking_noise_m: float = 0.0, registration_error_m: float = 0.0):
+        points, radius = task.aorta.asset.centerlines[task.target_name]
+        self._line = CenterlinePath(points, radius)
+        self._task = task
+        self.tracking_noise_m = float(tracking_noise_m)
+        self.registration_error_m = float(registration_error_m)
+        self._random_state = np.random.RandomState(0)
+        self._offset = np.zeros(3)
+        self._s = None
+
+    def start(self, random_state) -> None:
+        """A new episode: a new registration offset; the nearest point is searched afresh."""
+        self._random_state = random_state
+        self._offset = (random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0
+                        else np.zeros(3))
+        self._s = None
+
+    def _tracked(self, position) -> np.ndarray:
+        if self.tracking_noise_m > 0:
+            position = position + self._random_state.normal(0.0, self.tracking_noise_m, 3)
+        # The roadmap is registered with an error: the tip as seen on it is off by the offset.
+        return position - self._offset
+
+    def features(self, physics) -> np.ndarray:
+        task, line = self._task, self._line
+        base_site = physics.bind(task.guidewire.tip_base_site)
+        tip = self._tracked(task.tip_position_m(physics))
+        base = self._tracked(base_site.xpos.copy())
+        shaft = base_site.xmat.reshape(3, 3)[:, 2]
+        bend = component_across(tip - base, shaft)
+        if np.linalg.norm(bend) < 1e-6:  # a straight tip: its roll is the segment's own
+            bend = base_site.xmat.reshape(3, 3)[:, 0]
+        x = bend / np.linalg.norm(bend)
+        frame = np.stack([x, np.cross(shaft, x), shaft])  # rows: the tip frame's axes in world coordinates
+
+        if self._s is None:
+            s, outside = line.locate(tip)
+        else:
+            s, outside = line.locate(tip, self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
+        self._s = s
+        end = line.length_m
+        # Past the target the roadmap runs on along the branch (the line's extension): near
+        # the target the points still show the branch's axis, which the last turn needs.
+        ahead = np.array([line.at(s + d * 1e-3) for d in AHEAD_MM]) - tip
+        parts = [
+            (ahead @ frame.T).ravel() / CM,
+            frame @ (line.at(end) - tip) / CM,
+            frame @ (tip - base) / CM,
+            [line.radius_at(s) / CM, line.radius_at(end) / CM],
+            [(end - s) / (10 * CM)],
+            [outside / CM],
+        ]
+        return np.concatenate([np.asarray(p, dtype=float).ravel() for p in parts])

@@ -1,0 +1,120 @@
+"""The `roadmap` observation: the registered roadmap around the tracked tip, in the tip's frame."""
+
+import numpy as np
+import pytest
+
+from cathsim_dmc.anatomy.paths import CenterlinePath
+from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.tasks.roadmap import AHEAD_MM, CM, ROADMAP_SIZE
+
+# Offsets into the roadmap vector (tasks/roadmap.py's order).
+TARGET = slice(3 * len(AHEAD_MM), 3 * len(AHEAD_MM) + 3)
+BEND = slice(TARGET.stop, TARGET.stop + 3)
+RADII = slice(BEND.stop, BEND.stop + 2)
+REMAINING, OUTSIDE = BEND.stop + 2, BEND.stop + 3
+
+
+def _line(env):
+    task = env.task
+    return CenterlinePath(*task.aorta.asset.centerlines[task.target_name])
+
+
+def _drive(env, steps, action=(1.0, 0.3)):
+    obs = None
+    for _ in range(steps):
+        obs, *_ = env.step(np.array(action, dtype=np.float32))
+    return obs
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = CathSimEnv(task="bca", aorta="type1", obs="roadmap")
+    yield env
+    env.close()
+
+
+def test_the_preset_holds_the_roadmap_and_the_robot_state_and_no_privileged_state(env):
+    obs, info = env.reset(seed=0)
+    assert set(obs) == {"roadmap", "robot_state"}
+    assert obs["roadmap"].shape == (ROADMAP_SIZE,) and obs["robot_state"].shape == (5,)
+    assert np.isfinite(obs["roadmap"]).all()
+
+
+def test_distances_in_the_tip_frame_match_the_world(env):
+    """A rotation keeps lengths: the target and the nearest roadmap point are as far from
+    the tip as in world coordinates, and the remaining length is the line's."""
+    env.reset(seed=1)
+    obs = _drive(env, 25)
+    task, physics = env.task, env.physics
+    tip = task.tip_position_m(physics)
+    road = obs["roadmap"].astype(float)
+    assert np.linalg.norm(road[TARGET]) * CM == pytest.approx(task.target_distance_m(physics), rel=1e-4)
+    line = _line(env)
+    s, outside = line.locate(tip)
+    assert np.linalg.norm(road[0:3]) * CM == pytest.approx(np.linalg.norm(line.at(s) - tip), rel=1e-3, abs=1e-6)
+    assert road[REMAINING] * 10 * CM == pytest.approx(line.length_m - s, abs=1e-4)
+    assert road[OUTSIDE] * CM == pytest.approx(outside, abs=1e-5)
+    assert road[RADII][1] * CM == pytest.approx(line.radius_at(line.length_m))
+
+
+def test_the_frame_points_z_along_the_shaft_and_x_towards_the_bend(env):
+    env.reset(seed=2)
+    obs = _drive(env, 10)
+    bend = obs["roadmap"][BEND].astype(float)
+    assert bend[0] > 0.1 and abs(bend[1]) < 1e-5   # the bend lies along +x, none across
+    # The first path points lie ahead of the tip in the direction of insertion: up the shaft.
+    points = obs["roadmap"][:3 * len(AHEAD_MM)].reshape(-1, 3)
+    assert points[-1, 2] > points[0, 2]
+
+
+def test_the_tip_advancing_leaves_less_roadmap(env):
+    obs, _ = env.reset(seed=3)
+    before = obs["roadmap"][REMAINING]
+    after = _drive(env, 20, action=(1.0, 0.0))["roadmap"][REMAINING]
+    assert after < before - 0.3  # at least 3 cm of progress at full insertion for 2 s
+
+
+def test_noise_is_seeded_and_the_registration_offset_holds_for_an_episode():
+    env = CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=0.0, registration_error_m=0.002)
+    clean = CathSimEnv(task="bca", aorta="type1", obs="roadmap")
+    try:
+        first, _ = env.reset(seed=4)
+        again, _ = env.reset(seed=4)
+        other, _ = env.reset(seed=5)
+        exact, _ = clean.reset(seed=4)
+        assert np.array_equal(first["roadmap"], again["roadmap"])
+        assert not np.array_equal(first["roadmap"], other["roadmap"])
+        assert not np.allclose(first["roadmap"], exact["roadmap"])
+        # One offset for the whole episode: the target as seen from the tip stays off by the
+        # same world vector from step to step (the tip frame turns; lengths do not change).
+        env.reset(seed=4)
+        clean.reset(seed=4)
+        gaps = []
+        for _ in range(5):
+            noisy_obs, *_ = env.step(np.array([1.0, 0.0], np.float32))
+            clean_obs, *_ = clean.step(np.array([1.0, 0.0], np.float32))
+            gaps.append(np.linalg.norm(noisy_obs["roadmap"][TARGET] - clean_obs["roadmap"][TARGET]))
+        assert np.ptp(gaps) < 1e-3 and gaps[0] > 0.01
+    finally:
+        env.close()
+        clean.close()
+
+
+def test_tracking_noise_changes_every_step():
+    env = CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=0.001)
+    try:
+        obs, _ = env.reset(seed=0)
+        physics, task = env.physics, env.task
+        errors = []
+        for _ in range(4):
+            obs, *_ = env.step(np.array([0.0, 0.0], np.float32))
+            exact = task.target_distance_m(physics)
+            errors.append(np.linalg.norm(obs["roadmap"][TARGET]) * CM - exact)
+        assert len(set(np.round(errors, 9))) == 4 and max(map(abs, errors)) < 0.01
+    finally:
+        env.close()
+
+
+def test_a_negative_noise_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="tracking_noise_m=-0.001 must be a finite number >= 0"):
+        CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=-0.001)
