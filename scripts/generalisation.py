@@ -93,8 +93,9 @@ def import_corpus(root: Path) -> dict:
     return assets
 
 
-def policies(root: Path, task: str) -> dict:
-    """name -> what make_policy takes, for every policy that exists."""
+def policies(root: Path, task: str, unfinished: bool = False) -> dict:
+    """name -> what make_policy takes, for every policy that exists (a navigator run once it
+    has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
     from cathsim_dmc.pretrained import shipped_targets
 
@@ -106,20 +107,24 @@ def policies(root: Path, task: str) -> dict:
     for run in sorted((root / "runs" / task).glob("seed*")):
         for kind in ("best", "last"):
             checkpoint = run / "checkpoints" / f"{kind}.zip"
-            if checkpoint.is_file() and (run / "eval" / "metrics.json").is_file():  # a finished run
+            if checkpoint.is_file() and (unfinished or (run / "eval" / "metrics.json").is_file()):
                 found[f"navigator_{run.name}_{kind}"] = str(checkpoint)
     return found
 
 
-def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None) -> None:
+def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
+             unfinished: bool = False, only_anatomies: list | None = None) -> None:
     from cathsim_dmc.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.evaluation import evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
 
     anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"])}
     anatomies.update({name: (name, None, shipped_episodes) for name in SHIPPED})
-    anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
-    for policy_name, source in policies(root, task).items():
+    if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
+        anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
+    if only_anatomies:
+        anatomies = {k: v for k, v in anatomies.items() if k in only_anatomies}
+    for policy_name, source in policies(root, task, unfinished).items():
         if only and policy_name not in only:
             continue
         policy = make_policy(source, seed=0, task=task)
@@ -314,6 +319,8 @@ def main(argv=None) -> int:
     ev.add_argument("--episodes", type=int, default=HELDOUT["pool_size"], help="episodes on the held-out pool")
     ev.add_argument("--shipped-episodes", type=int, default=20, help="episodes on each shipped aorta and corpus mesh")
     ev.add_argument("--only", nargs="*", help="score only these policies (names as in ROOT/scores)")
+    ev.add_argument("--unfinished", action="store_true", help="also score runs without their final report")
+    ev.add_argument("--anatomies", nargs="*", help="score only these anatomies (heldout, tuning, type1, ...)")
     rep = sub.add_parser("report")
     rep.add_argument("--out", type=Path, default=None)
     shp = sub.add_parser("ship", help="export the seed best on the tuning pool as policy=pretrained")
@@ -322,7 +329,8 @@ def main(argv=None) -> int:
     if args.command == "train":
         train(args.root, args.task, args.seed, args.specialist, args.overrides)
     elif args.command == "evaluate":
-        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only)
+        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only, args.unfinished,
+                 args.anatomies)
     elif args.command == "ship":
         ship(args.root, args.task)
     else:
