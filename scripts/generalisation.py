@@ -253,6 +253,9 @@ def ship(root: Path, task: str) -> Path:
         m = _metrics(folder / TUNING_NAME)
         if m:
             candidates[folder] = (m["summary"]["success_pct"]["mean"], m["summary"]["spl_pct"]["mean"])
+    seeds = sorted(scores.glob("navigator_seed*_best"))
+    if not candidates and len(seeds) == 1:
+        candidates = {seeds[0]: (0.0, 0.0)}  # one seed: nothing to choose between
     if not candidates:
         raise SystemExit(f"no navigator of {task} scored on the tuning pool in {scores}: run evaluate first")
     chosen = max(candidates, key=candidates.get)
@@ -260,9 +263,21 @@ def ship(root: Path, task: str) -> Path:
     run = root / "runs" / task / seed
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    rows = "\n".join(f"| {anatomy} | {_summary(chosen / anatomy)} |"
-                      for anatomy in (HELDOUT_NAME, TUNING_NAME, *SHIPPED, *[f"corpus_{c}" for c in CORPUS]))
+    anatomies = (HELDOUT_NAME, TUNING_NAME, *SHIPPED, *[f"corpus_{c}" for c in CORPUS])
+    names = {HELDOUT_NAME: "held out: pool 1000, 100 arches", TUNING_NAME: "tuning: pool 500, 50 arches"}
+    rows = "\n".join(f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |" for anatomy in anatomies
+                      if _metrics(chosen / anatomy))
+    missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
+    if missing:
+        rows += f"\n\nNot scored yet: {', '.join(missing)}."
     command = f"cathsim-train +experiment=navigator task={task} {seed.replace('seed', 'seed=')}"
+    steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    from omegaconf import OmegaConf
+
+    budget = int(OmegaConf.load(run / "config.yaml").trainer.total_timesteps)
+    stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
+    chosen_by = (f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1
+                 else "the only seed trained so far")
     card = f"""# Pretrained navigator: {task.upper()}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
@@ -275,8 +290,8 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
   frame, and the robot's encoders; docs/observations.md#roadmap), trained without noise.
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
-  `best.zip` of the run (step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
-  evaluation on the training pool), chosen among the seeds by the tuning pool.
+  `best.zip` of the run{stopped}: step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
+  evaluation on 20 training arches; {chosen_by}.
 - **Data**: 64 random arches (`pool_seed` 0; types I-III, sizes and diameters x U(0.85, 1.15),
   obliquity 39.7 +- 13.8 degrees), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
   episodes labelled by the expert, then SAC with the cloning term.
