@@ -93,8 +93,9 @@ def import_corpus(root: Path) -> dict:
     return assets
 
 
-def policies(root: Path, task: str) -> dict:
-    """name -> what make_policy takes, for every policy that exists."""
+def policies(root: Path, task: str, unfinished: bool = False) -> dict:
+    """name -> what make_policy takes, for every policy that exists (a navigator run once it
+    has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
     from cathsim_dmc.pretrained import shipped_targets
 
@@ -106,20 +107,24 @@ def policies(root: Path, task: str) -> dict:
     for run in sorted((root / "runs" / task).glob("seed*")):
         for kind in ("best", "last"):
             checkpoint = run / "checkpoints" / f"{kind}.zip"
-            if checkpoint.is_file() and (run / "eval" / "metrics.json").is_file():  # a finished run
+            if checkpoint.is_file() and (unfinished or (run / "eval" / "metrics.json").is_file()):
                 found[f"navigator_{run.name}_{kind}"] = str(checkpoint)
     return found
 
 
-def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None) -> None:
+def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
+             unfinished: bool = False, only_anatomies: list | None = None) -> None:
     from cathsim_dmc.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.evaluation import evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
 
     anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"])}
     anatomies.update({name: (name, None, shipped_episodes) for name in SHIPPED})
-    anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
-    for policy_name, source in policies(root, task).items():
+    if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
+        anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
+    if only_anatomies:
+        anatomies = {k: v for k, v in anatomies.items() if k in only_anatomies}
+    for policy_name, source in policies(root, task, unfinished).items():
         if only and policy_name not in only:
             continue
         policy = make_policy(source, seed=0, task=task)
@@ -248,6 +253,9 @@ def ship(root: Path, task: str) -> Path:
         m = _metrics(folder / TUNING_NAME)
         if m:
             candidates[folder] = (m["summary"]["success_pct"]["mean"], m["summary"]["spl_pct"]["mean"])
+    seeds = sorted(scores.glob("navigator_seed*_best"))
+    if not candidates and len(seeds) == 1:
+        candidates = {seeds[0]: (0.0, 0.0)}  # one seed: nothing to choose between
     if not candidates:
         raise SystemExit(f"no navigator of {task} scored on the tuning pool in {scores}: run evaluate first")
     chosen = max(candidates, key=candidates.get)
@@ -255,9 +263,21 @@ def ship(root: Path, task: str) -> Path:
     run = root / "runs" / task / seed
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    rows = "\n".join(f"| {anatomy} | {_summary(chosen / anatomy)} |"
-                      for anatomy in (HELDOUT_NAME, TUNING_NAME, *SHIPPED, *[f"corpus_{c}" for c in CORPUS]))
+    anatomies = (HELDOUT_NAME, TUNING_NAME, *SHIPPED, *[f"corpus_{c}" for c in CORPUS])
+    names = {HELDOUT_NAME: "held out: pool 1000, 100 arches", TUNING_NAME: "tuning: pool 500, 50 arches"}
+    rows = "\n".join(f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |" for anatomy in anatomies
+                      if _metrics(chosen / anatomy))
+    missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
+    if missing:
+        rows += f"\n\nNot scored yet: {', '.join(missing)}."
     command = f"cathsim-train +experiment=navigator task={task} {seed.replace('seed', 'seed=')}"
+    steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    from omegaconf import OmegaConf
+
+    budget = int(OmegaConf.load(run / "config.yaml").trainer.total_timesteps)
+    stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
+    chosen_by = (f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1
+                 else "the only seed trained so far")
     card = f"""# Pretrained navigator: {task.upper()}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
@@ -270,8 +290,8 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
   frame, and the robot's encoders; docs/observations.md#roadmap), trained without noise.
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
-  `best.zip` of the run (step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
-  evaluation on the training pool), chosen among the seeds by the tuning pool.
+  `best.zip` of the run{stopped}: step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
+  evaluation on 20 training arches; {chosen_by}.
 - **Data**: 64 random arches (`pool_seed` 0; types I-III, sizes and diameters x U(0.85, 1.15),
   obliquity 39.7 +- 13.8 degrees), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
   episodes labelled by the expert, then SAC with the cloning term.
@@ -314,6 +334,8 @@ def main(argv=None) -> int:
     ev.add_argument("--episodes", type=int, default=HELDOUT["pool_size"], help="episodes on the held-out pool")
     ev.add_argument("--shipped-episodes", type=int, default=20, help="episodes on each shipped aorta and corpus mesh")
     ev.add_argument("--only", nargs="*", help="score only these policies (names as in ROOT/scores)")
+    ev.add_argument("--unfinished", action="store_true", help="also score runs without their final report")
+    ev.add_argument("--anatomies", nargs="*", help="score only these anatomies (heldout, tuning, type1, ...)")
     rep = sub.add_parser("report")
     rep.add_argument("--out", type=Path, default=None)
     shp = sub.add_parser("ship", help="export the seed best on the tuning pool as policy=pretrained")
@@ -322,7 +344,8 @@ def main(argv=None) -> int:
     if args.command == "train":
         train(args.root, args.task, args.seed, args.specialist, args.overrides)
     elif args.command == "evaluate":
-        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only)
+        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only, args.unfinished,
+                 args.anatomies)
     elif args.command == "ship":
         ship(args.root, args.task)
     else:

@@ -62,7 +62,7 @@ def main():
 
     run_hydra(evaluate, "eval", {
         "task": lambda: TARGETS, "aorta": aorta_choices,
-        "policy": lambda: sorted(BUILTIN_POLICIES), "obs": lambda: sorted(OBSERVATION_PRESETS),
+        "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]), "obs": lambda: sorted(OBSERVATION_PRESETS),
     }, paths_allowed=("policy",))
 
 
