@@ -164,13 +164,11 @@ def shipped_targets(folder: Path | None = None) -> tuple:
 
 
 def _spaces(meta: dict):
-    import gymnasium
     from gymnasium import spaces
 
     observation = spaces.Dict({key: spaces.Box(-np.inf, np.inf, shape=tuple(shape), dtype=np.float32)
                                for key, shape in meta["observation_shapes"].items()})
     action = spaces.Box(-1.0, 1.0, shape=(int(meta["action_size"]),), dtype=np.float32)
-    assert isinstance(observation, gymnasium.spaces.Dict)
     return observation, action
 
 
