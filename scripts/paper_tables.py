@@ -1,129 +1,676 @@
-"""Reproduce the paper's imitation-learning and force-prediction tables from finished runs.
+"""The CathSim paper's experiments, re-run: its tables and learning-curve figure, resumably.
 
-    python scripts/paper_tables.py \
-        --expert bca=outputs/eval/bca-type1/<run> --expert lcca=outputs/eval/lcca-type1/<run> \
-        --image bca=outputs/train/bca-type1/pixels/<run> \
-        --bc bca=outputs/bc/bca-type1/<run> --bc lcca=outputs/bc/lcca-type1/<run> \
-        --force outputs/force/<run> --out outputs/tables
+    python scripts/paper_tables.py plan                  # every cell: state, estimated and measured cost
+    python scripts/paper_tables.py run --jobs 2          # run what is not finished (a killed run resumes)
+    python scripts/paper_tables.py run --only main/enn   # cells whose name starts with this
+    python scripts/paper_tables.py report --out docs/paper.md
 
-Rows of the imitation table: "Expert" (the scripted expert, or an ENN agent's
-cathsim-eval folder), "Image w/o expert" (SAC on obs=pixels, a cathsim-train run),
-"Image w. expert" (the cathsim-bc student); columns the paper's metrics for each target.
-A folder is a cathsim-eval run (metrics.json) or a cathsim-train / cathsim-bc run
-(eval/metrics.json); a row without a folder says "not run". The force table is the
-test MSE of a cathsim-force run per training size, with its baselines.
+A cell is one tool run (cathsim-train, -collect, -bc or -force) in ROOT/<cell name>. It is
+finished when ROOT/<cell>/cell.json exists (written when the tool exits cleanly, with the
+commit, the command and the wall time), and finished cells are skipped. A training cell cut
+short resumes from its last checkpoint; a collection continues its dataset; a cloning or
+force cell starts again. Two `run` processes (or --jobs 2) share the work: a cell being run
+holds ROOT/<cell>/running.
 
-Writes imitation.md, force.md and tables.json into --out.
+The cells:
+  main/<obs>/<target>/seed<s>    the main table: the project's recipe on type I, 5 modalities x
+                                 2 targets x 3 seeds, each best.zip scored on 50 episodes
+                                 (seeds 10,000+) that did not choose it (seeds 20,000+)
+  imitation/data/...             expert and ENN-agent datasets (cathsim-collect)
+  imitation/bc/...               single-frame image students (cathsim-bc)
+  force                          force prediction at 1K, 10K and 100K training images
+  protocol/<obs>/<target>/seed0  the paper's protocol: the paper's SAC, Euclidean reward, no
+                                 demonstrations, 100k steps
+
+`report` writes the tables and the figure. With --out pointing at an existing markdown file,
+it replaces only the text between `<!-- paper_tables:NAME -->` and `<!-- /paper_tables:NAME -->`
+(NAME: main, protocol, imitation, force, curves, cost), so the prose around the tables stays.
+--budget tiny runs every cell on a few steps and episodes (tests); a root keeps the budget
+it was started with.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import os
+import re
+import shutil
+import statistics
+import subprocess
 import sys
+import threading
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
-ROWS = (("expert", "Expert"), ("image", "Image w/o expert"), ("bc", "Image w. expert"))
 TARGETS = ("bca", "lcca")
+SEEDS = (0, 1, 2)
+# The main table's rows: obs preset -> the paper's name.
+MODALITIES = {"pixels": "Image", "pixels_mask": "Image+Mask", "internal": "Internal",
+              "internal_pixels": "Internal+Image", "enn": "ENN"}
+# The project's recipe per modality: environment steps, and evaluations every 1,000 steps from
+# the pre-trained actor on (eval_at_start). With the joints alone the online phase needs its
+# 8k steps (docs/training.md); with an image the pre-trained actor already navigates, and the
+# ENN's best.zip came from the first 2k steps in each of its six runs.
+MAIN_STEPS = {"internal": 8000, "pixels": 3000, "pixels_mask": 3000, "internal_pixels": 3000, "enn": 3000}
+FINAL_EPISODES = 50
+# The paper's protocol: its SAC (on an image, the CPU variant: one shared encoder, batch 64),
+# its Euclidean reward, no demonstrations.
+PROTOCOL = {"internal": ["algo=sac"], "pixels": ["algo=sac_cpu"]}
+PROTOCOL_STEPS = 100_000
+EXPERT_EPISODES = 300     # the students' datasets (per target)
+MORE_EXPERT_EPISODES = 700  # more expert episodes: 1,000 per target for the 100K force subset
+BC_EPOCHS = 20
+
+# The paper's numbers (Type-I phantom): success % / SPL %.
+PAPER_MAIN = {("pixels", "bca"): (65, 74), ("pixels", "lcca"): (33, 69),
+              ("pixels_mask", "bca"): (100, 86), ("pixels_mask", "lcca"): (100, 96),
+              ("internal", "bca"): (97, 80), ("internal", "lcca"): (83, 79),
+              ("internal_pixels", "bca"): (33, 76), ("internal_pixels", "lcca"): (100, 100),
+              ("enn", "bca"): (100, 99), ("enn", "lcca"): (100, 100)}
+# The paper's ENN: force N, path cm, episode length, safety %.
+PAPER_ENN = {"bca": (2.33, 15.78, 36.88, 45), "lcca": (2.26, 14.85, 33.77, 45)}
+PAPER_BC = {"bca": (100, 98), "lcca": (100, 100)}  # "Image w. ENN": success / SPL
+PAPER_FORCE = {1000: 0.5047, 10000: 0.1828, 100000: 0.0898}
+PAPER_FORCE_BASELINE = 5.0021
+
+TINY = {  # --budget tiny: every cell on a few steps and short episodes
+    "train": ["task.max_steps=30", "trainer.total_timesteps=20", "trainer.eval_every=10", "trainer.eval_episodes=1",
+              "trainer.final_eval_episodes=1", "trainer.checkpoint_every=10"],
+    "train_demos": ["demos.episodes=1", "demos.pretrain_actor_steps=2", "demos.critic_warmup_steps=2",
+                    "demos.takeover_rounds=0"],
+    "collect": ["task.max_steps=30", "episodes=2"],
+    "bc": ["task.max_steps=30", "bc.epochs=1", "eval_episodes=1"],
+    "force": ["force.sizes=[20,40]", "force.epochs=1", "force.min_updates=2"],
+}
+CELL_FILE = "cell.json"
+LOCK_FILE = "running"
 
 
 class UsageError(Exception):
     pass
 
 
-def metrics_file(folder) -> Path:
-    folder = Path(folder)
-    for candidate in (folder / "metrics.json", folder / "eval" / "metrics.json"):
-        if candidate.is_file():
-            return candidate
-    raise UsageError(f"{folder} has no metrics.json or eval/metrics.json (a cathsim-eval, -train or -bc run folder)")
+@dataclass
+class Cell:
+    name: str                        # its folder under ROOT
+    tool: str                        # train | collect | bc | force
+    args: Callable[[Path], list]     # the tool's Hydra overrides, given ROOT
+    minutes: float                   # estimated wall time on the 2-core machine beside one other job
+    needs: tuple = ()                # names of cells to finish first
+    demos: bool = True               # a training cell that records demonstrations
 
 
-def parse_pairs(pairs, option) -> dict:
-    out = {}
-    for pair in pairs or []:
-        target, sep, folder = pair.partition("=")
-        if not sep or target not in TARGETS:
-            raise UsageError(f"{option} {pair!r}: write TARGET=FOLDER with TARGET one of {list(TARGETS)}")
-        out[target] = metrics_file(folder)
-    return out
+@dataclass
+class Plan:
+    root: Path
+    budget: str = "full"
+    cells: list = field(default_factory=list)
+
+    def folder(self, cell: Cell) -> Path:
+        return self.root / cell.name
+
+    def done(self, cell: Cell) -> bool:
+        return (self.folder(cell) / CELL_FILE).is_file()
+
+    def by_name(self, name: str) -> Cell:
+        return next(c for c in self.cells if c.name == name)
 
 
-def imitation_table(runs: dict) -> tuple:
+def _fixed(*args):
+    return lambda root: list(args)
+
+
+def _train_args(obs: str, target: str, seed: int, extra=()):
+    return _fixed(f"task={target}", "aorta=type1", f"obs={obs}", f"seed={seed}", *extra,
+                  "trainer.progress_bar=false", "trainer.video=false")
+
+
+def main_cell(obs: str, target: str, seed: int) -> Cell:
+    steps = MAIN_STEPS[obs]
+    return Cell(f"main/{obs}/{target}/seed{seed}", "train",
+                _train_args(obs, target, seed, [f"trainer.total_timesteps={steps}", "trainer.eval_every=1000",
+                                                "trainer.eval_episodes=10", "trainer.eval_at_start=true",
+                                                f"trainer.final_eval_episodes={FINAL_EPISODES}"]),
+                minutes=15 if obs == "internal" else 45)
+
+
+def protocol_cell(obs: str, target: str) -> Cell:
+    extra = [*PROTOCOL[obs], "reward=euclidean", "demos=none", f"trainer.total_timesteps={PROTOCOL_STEPS}",
+             "trainer.eval_every=5000", "trainer.eval_episodes=10", f"trainer.final_eval_episodes={FINAL_EPISODES}",
+             "trainer.checkpoint_every=5000", "trainer.save_replay_buffer=true"]
+    return Cell(f"protocol/{obs}/{target}/seed0", "train", _train_args(obs, target, 0, extra),
+                minutes=150 if obs == "internal" else 400, demos=False)
+
+
+def best_enn_run(root: Path, target: str) -> Path:
+    """The ENN seed whose final report scored best (success, then SPL; the lowest seed on a tie)."""
+    scored = []
+    for seed in SEEDS:
+        summary = _report(root / f"main/enn/{target}/seed{seed}")["summary"]
+        scored.append((-summary["success_pct"]["mean"], -summary["spl_pct"]["mean"], seed))
+    return root / f"main/enn/{target}/seed{min(scored)[2]}"
+
+
+def build_plan(root: Path, budget: str = "full") -> Plan:
+    plan = Plan(root, budget)
+    add = plan.cells.append
+    data = lambda name: str(root / "imitation" / "data" / name)  # noqa: E731
+    for obs in ("internal", "enn"):
+        for seed in SEEDS:
+            for target in TARGETS:
+                add(main_cell(obs, target, seed))
+    for target in TARGETS:
+        add(Cell(f"imitation/data/expert_{target}", "collect",
+                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
+                        "progress_bar=false"), minutes=10))
+        add(Cell(f"imitation/bc/expert_{target}", "bc",
+                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_{target}')}", f"bc.epochs={BC_EPOCHS}",
+                        f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
+                 minutes=35, needs=(f"imitation/data/expert_{target}",)))
+    for obs in ("pixels_mask", "pixels", "internal_pixels"):
+        for seed in SEEDS:
+            for target in TARGETS:
+                add(main_cell(obs, target, seed))
+    for target in TARGETS:
+        enn_seeds = tuple(f"main/enn/{target}/seed{s}" for s in SEEDS)
+        add(Cell(f"imitation/data/enn_{target}", "collect",
+                 lambda root, t=target: [f"task={t}", "aorta=type1", f"policy={best_enn_run(root, t)}",
+                                         f"episodes={EXPERT_EPISODES}", "seed=0", "progress_bar=false"],
+                 minutes=15, needs=enn_seeds))
+        add(Cell(f"imitation/bc/enn_{target}", "bc",
+                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'enn_{target}')}", f"bc.epochs={BC_EPOCHS}",
+                        f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
+                 minutes=35, needs=(f"imitation/data/enn_{target}",)))
+    for target in TARGETS:
+        add(Cell(f"imitation/data/expert_more_{target}", "collect",
+                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={MORE_EXPERT_EPISODES}",
+                        f"seed={EXPERT_EPISODES}", "progress_bar=false"), minutes=20))
+    every = [f"expert_{t}" for t in TARGETS] + [f"expert_more_{t}" for t in TARGETS]
+    add(Cell("force", "force", _fixed(f"data=[{','.join(data(d) for d in every)}]", "force.epochs=8",
+                                      "progress_bar=false"),
+             minutes=60, needs=tuple(f"imitation/data/{d}" for d in every)))
+    # More data for the single-frame LCCA student: all 1,000 expert episodes.
+    add(Cell("imitation/bc/expert1000_lcca", "bc",
+             _fixed("task=lcca", "aorta=type1", f"data=[{data('expert_lcca')},{data('expert_more_lcca')}]",
+                    "bc.epochs=10", f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
+             minutes=60, needs=("imitation/data/expert_lcca", "imitation/data/expert_more_lcca")))
+    for target in TARGETS:
+        for obs in PROTOCOL:
+            add(protocol_cell(obs, target))
+    return plan
+
+
+# -- running -------------------------------------------------------------------------------
+def _commit() -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
+    return out.stdout.strip() or "unknown"
+
+
+def _tool(name: str) -> str:
+    return str(Path(sys.executable).with_name(f"cathsim-{name}"))
+
+
+def command(plan: Plan, cell: Cell) -> list:
+    """The command that runs `cell` now: a training cell with a checkpoint resumes from it."""
+    folder = plan.folder(cell)
+    if cell.tool == "train" and (folder / "checkpoints" / "last.zip").is_file():
+        return [_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
+    args = cell.args(plan.root)
+    if plan.budget == "tiny":
+        args = _override(args, TINY[cell.tool] + (TINY["train_demos"] if cell.tool == "train" and cell.demos else []))
+    if cell.tool == "collect":
+        args.append(f"out={folder}")
+    return [_tool(cell.tool), *args, f"hydra.run.dir={folder}"]
+
+
+def _override(args: list, changes: list) -> list:
+    """`args` with each key=value of `changes` replacing the same key's (Hydra refuses a key twice)."""
+    keys = {c.split("=", 1)[0] for c in changes}
+    return [a for a in args if a.split("=", 1)[0] not in keys] + list(changes)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _claim(folder: Path) -> bool:
+    """Take the cell's lock; a lock whose process has died is taken over."""
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / LOCK_FILE
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text().strip() or 0)
+            except (OSError, ValueError):
+                pid = 0
+            if pid and _alive(pid):
+                return False
+            lock.unlink(missing_ok=True)
+            continue
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        return True
+    return False
+
+
+def run_cell(plan: Plan, cell: Cell) -> bool:
+    """Run one cell to its end; True when it finished."""
+    folder = plan.folder(cell)
+    if not _claim(folder):
+        return False
+    try:
+        if cell.tool in ("bc", "force"):  # these start again: clear what a killed attempt left
+            for item in folder.iterdir():
+                if item.name != LOCK_FILE:
+                    shutil.rmtree(item) if item.is_dir() else item.unlink()
+        attempts = folder / "attempts.jsonl"
+        cmd = command(plan, cell)
+        with attempts.open("a") as f:
+            f.write(json.dumps({"started": _now(), "command": cmd}) + "\n")
+        print(f"[{cell.name}] {' '.join(cmd)}", flush=True)
+        t0 = time.time()
+        with (folder / "tool.log").open("a") as log:
+            result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+        seconds = time.time() - t0
+        if result.returncode != 0:
+            print(f"[{cell.name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}",
+                  flush=True)
+            return False
+        count = len(attempts.read_text().splitlines())
+        (folder / CELL_FILE).write_text(json.dumps(
+            {"cell": cell.name, "tool": cell.tool, "command": " ".join(cmd), "commit": _commit(),
+             "budget": plan.budget, "seconds": round(seconds, 1), "attempts": count, "finished": _now()}, indent=1))
+        print(f"[{cell.name}] finished in {seconds / 60:.1f} min", flush=True)
+        return True
+    finally:
+        (folder / LOCK_FILE).unlink(missing_ok=True)
+
+
+def _now() -> str:
+    return datetime.datetime.now().isoformat(timespec="seconds")
+
+
+def run(plan: Plan, only: list | None, jobs: int) -> int:
+    """Run every unfinished cell (matching `only`) whose needs are met, `jobs` at a time."""
+    chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
+    lock = threading.Lock()
+    taken: set = set()
+    failed: set = set()
+
+    def next_cell():
+        with lock:
+            for cell in chosen:
+                if cell.name in taken or plan.done(cell):
+                    continue
+                if all(plan.done(plan.by_name(n)) for n in cell.needs):
+                    taken.add(cell.name)
+                    return cell
+            return None
+
+    def worker():
+        while (cell := next_cell()) is not None:
+            if not run_cell(plan, cell):
+                failed.add(cell.name)
+
+    threads = [threading.Thread(target=worker) for _ in range(max(1, jobs))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    waiting = [c.name for c in chosen if not plan.done(c) and c.name not in taken]
+    for name in waiting:
+        print(f"[{name}] waiting for {', '.join(n for n in plan.by_name(name).needs if not plan.done(plan.by_name(n)))}")
+    for name in sorted(failed):
+        print(f"[{name}] not finished (failed, or run by another process)")
+    return 1 if failed else 0
+
+
+def state(plan: Plan, cell: Cell) -> str:
+    folder = plan.folder(cell)
+    if plan.done(cell):
+        return "done"
+    if (folder / LOCK_FILE).is_file():
+        return "running"
+    if folder.is_dir() and any(folder.iterdir()):
+        return "partial"
+    if not all(plan.done(plan.by_name(n)) for n in cell.needs):
+        return "waiting"
+    return "to do"
+
+
+def print_plan(plan: Plan) -> None:
+    total = 0.0
+    print(f"{'cell':40s} {'tool':8s} {'state':8s} estimated  measured")
+    for cell in plan.cells:
+        info = _cell_info(plan.folder(cell))
+        measured = f"{info['seconds'] / 60:.0f} min" if info else ""
+        if not info:
+            total += cell.minutes
+        print(f"{cell.name:40s} {cell.tool:8s} {state(plan, cell):8s} {cell.minutes:5.0f} min  {measured}")
+    print(f"left: about {total / 60:.1f} h of job time (two jobs share the 2 cores)")
+
+
+def open_plan(root: Path, budget: str | None) -> Plan:
+    """The plan of `root`; the first run records its budget, and a different one is refused."""
+    record = root / "plan.json"
+    if record.is_file():
+        recorded = json.loads(record.read_text())["budget"]
+        if budget and budget != recorded:
+            raise UsageError(f"--budget {budget}: {root} was started with --budget {recorded} (choose another --root)")
+        budget = recorded
+    budget = budget or "full"
+    return build_plan(root, budget)
+
+
+# -- report --------------------------------------------------------------------------------
+def _cell_info(folder: Path) -> dict | None:
+    path = folder / CELL_FILE
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _report(folder: Path) -> dict:
+    for path in (folder / "eval" / "metrics.json", folder / "metrics.json"):
+        if path.is_file():
+            return json.loads(path.read_text())
+    raise FileNotFoundError(f"{folder}: no eval/metrics.json")
+
+
+def _finished(plan: Plan, name: str) -> dict | None:
+    """The final report of a finished cell."""
+    folder = plan.root / name
+    return _report(folder) if (folder / CELL_FILE).is_file() else None
+
+
+def _pooled(reports: list) -> dict:
+    """{metric: (mean, std)} over every episode of the reports."""
     from cathsim_dmc.metrics import METRIC_COLUMNS
 
-    header = ["Target", "Method"] + [h for h, _ in METRIC_COLUMNS.values()] + ["Episodes", "Source"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    records = []
+    episodes = [e for r in reports for e in r["per_episode"]]
+    return {k: (statistics.fmean(e[k] for e in episodes), statistics.pstdev(e[k] for e in episodes))
+            for k in METRIC_COLUMNS}
+
+
+def _metric_cells(pooled: dict) -> list:
+    from cathsim_dmc.metrics import METRIC_COLUMNS
+
+    return [f"{fmt.format(pooled[k][0])} ± {fmt.format(pooled[k][1])}" for k, (_, fmt) in METRIC_COLUMNS.items()]
+
+
+def _metric_header() -> list:
+    from cathsim_dmc.metrics import METRIC_COLUMNS
+
+    return [h for h, _ in METRIC_COLUMNS.values()]
+
+
+def _table(header: list, rows: list) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                     + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]) + "\n"
+
+
+def _provenance(plan: Plan, names: list, only: str) -> str:
+    infos = [i for i in (_cell_info(plan.root / n) for n in names) if i]
+    if not infos:
+        return ""
+    commits = sorted({i["commit"] for i in infos})
+    dates = sorted(i["finished"][:10] for i in infos)
+    span = dates[0] if dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}"
+    budget = "" if plan.budget == "full" else f", budget {plan.budget}"
+    return (f"\n{len(infos)} of {len(names)} cells finished, {span}, at commit{'s' if len(commits) > 1 else ''} "
+            f"{', '.join(commits)}{budget}; `python scripts/paper_tables.py run --only "
+            f"{os.path.commonprefix(names).rstrip('/') or '<cell>'}`.\n")
+
+
+def main_table(plan: Plan) -> str:
+    rows, names = [], []
     for target in TARGETS:
-        for key, method in ROWS:
-            path = runs[key].get(target)
-            if path is None:
-                cells = [target.upper(), method] + ["not run"] * len(METRIC_COLUMNS) + ["0", "-"]
-                records.append({"target": target, "method": method, "run": None})
+        for obs, label in MODALITIES.items():
+            cells = [f"main/{obs}/{target}/seed{s}" for s in SEEDS]
+            names += cells
+            reports = [r for r in (_finished(plan, n) for n in cells) if r]
+            paper = "{} / {}".format(*PAPER_MAIN[(obs, target)])
+            if not reports:
+                rows.append([label, target.upper(), 0, *["not run"] * 6, "-", paper])
+                continue
+            per_seed = ", ".join(f"{r['summary']['success_pct']['mean']:.0f}" for r in reports)
+            rows.append([label, target.upper(), len(reports), *_metric_cells(_pooled(reports)), per_seed, paper])
+    header = ["Modality", "Target", "Seeds", *_metric_header(), "Success per seed (%)", "Paper: Success / SPL (%)"]
+    enn = "; ".join(f"{t.upper()} {f} N, {p} cm, {n} steps, safety {s}%" for t, (f, p, n, s) in PAPER_ENN.items())
+    return (_table(header, rows) + f"\nThe paper's ENN row, force / path length / episode length / safety: {enn}.\n"
+            + _provenance(plan, names, "main"))
+
+
+def _evaluations(folder: Path) -> list:
+    path = folder / "evaluations.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def protocol_table(plan: Plan) -> str:
+    rows, names = [], []
+    for target in TARGETS:
+        for obs in PROTOCOL:
+            name = f"protocol/{obs}/{target}/seed0"
+            names.append(name)
+            evals = _evaluations(plan.root / name)
+            curve = ", ".join(f"{e['success_rate'] * 100:.0f}" for e in evals) or "-"
+            last = f"{evals[-1]['step']:,}" if evals else "0"
+            report = _finished(plan, name)
+            ours = [_finished(plan, f"main/{obs}/{target}/seed{s}") for s in SEEDS]
+            ours = [r for r in ours if r]
+            recipe = (f"{statistics.median(r['summary']['success_pct']['mean'] for r in ours):.0f}" if ours else "-")
+            if report:
+                s = report["summary"]
+                result = f"{s['success_pct']['mean']:.0f} / {s['spl_pct']['mean']:.0f}"
             else:
-                report = json.loads(path.read_text())
-                summary = report["summary"]
-                cells = [target.upper(), method]
-                for metric, (_, fmt) in METRIC_COLUMNS.items():
-                    cells.append(f"{fmt.format(summary[metric]['mean'])} ± {fmt.format(summary[metric]['std'])}")
-                cells += [str(len(report.get("per_episode", []))), f"`{report['policy']}` on {report['aorta']}"]
-                records.append({"target": target, "method": method, "run": str(path.parent), "summary": summary,
-                                "episodes": len(report.get("per_episode", []))})
-            lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n", records
+                result = "running" if evals else "not run"
+            rows.append([MODALITIES[obs], target.upper(), last, curve, result, recipe,
+                         "{} / {}".format(*PAPER_MAIN[(obs, target)])])
+    header = ["Modality", "Target", "Steps", "Success every 5k steps (%, 10 episodes)",
+              f"best.zip: Success / SPL (%, {FINAL_EPISODES} episodes)", "The project's recipe: median success (%)",
+              "Paper: Success / SPL (%)"]
+    return _table(header, rows) + _provenance(plan, names, "protocol")
 
 
-def force_table(folder) -> tuple:
-    from cathsim_dmc.supervised.force import markdown
+def _imitation_row(target: str, label: str, folder: Path | None, paper: tuple | None) -> list:
+    paper_cell = "{} / {}".format(*paper) if paper else "-"
+    if folder is None:
+        return [target.upper(), label, *["not run"] * 6, 0, paper_cell]
+    report = _report(folder)
+    return [target.upper(), label, *_metric_cells(_pooled([report])), len(report["per_episode"]), paper_cell]
 
-    path = Path(folder) / "force.json"
-    if not path.is_file():
-        raise UsageError(f"--force {folder}: no force.json (a cathsim-force run folder)")
-    report = json.loads(path.read_text())
-    sizes = report["sizes"]
-    header = ["Test MSE (N²) [RMSE (N)]"] + [f"{r['train_samples']:,} samples" for r in sizes]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
 
-    def add_rows(scores):  # scores: one {"model": ..., "train_mean": ..., ...} per size
-        for key, name in (("model", "Force network"), ("train_mean", "Train-set mean"),
-                          ("before_fine_tuning", "Before fine-tuning")):
-            lines.append("| " + " | ".join([name] + [f"{c[key]['mse_n2']:.4f} [{c[key]['rmse_n']:.3f}]"
-                                                        for c in scores]) + " |")
+def imitation_table(plan: Plan) -> str:
+    rows, names = [], []
+    for target in TARGETS:
+        enn_done = all((plan.root / f"main/enn/{target}/seed{s}" / CELL_FILE).is_file() for s in SEEDS)
+        # (label, cell folder or None, the paper's success / SPL or None)
+        sources = [("ENN (the best of the 3 seeds)", best_enn_run(plan.root, target) if enn_done else None,
+                    PAPER_MAIN[("enn", target)]),
+                   ("Image w/o expert (the paper's protocol)", plan.root / f"protocol/pixels/{target}/seed0",
+                    PAPER_MAIN[("pixels", target)]),
+                   ("Image w. ENN agent", plan.root / f"imitation/bc/enn_{target}", PAPER_BC[target]),
+                   ("Image w. scripted expert", plan.root / f"imitation/bc/expert_{target}", None)]
+        if target == "lcca":
+            sources.append(("Image w. scripted expert, 1,000 episodes", plan.root / "imitation/bc/expert1000_lcca",
+                            None))
+        for label, folder, paper in sources:
+            if folder is not None:
+                names.append(str(folder.relative_to(plan.root)))
+            rows.append(_imitation_row(target, label, folder if folder and (folder / CELL_FILE).is_file() else None,
+                                       paper))
+        human = plan.root / "human" / target
+        rows.append(_imitation_row(target, "Human (cathsim-teleop)", human if (human / "metrics.json").is_file()
+                                   else None, None))
+    header = ["Target", "Method", *_metric_header(), "Episodes", "Paper: Success / SPL (%)"]
+    note = ""
+    if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
+        note = ("\nNo human data was recorded. To add the Human row, drive `cathsim-teleop task=bca aorta=type1` "
+                f"(it needs a display) and copy its run folder to {plan.root}/human/bca (and lcca).\n")
+    return _table(header, rows) + note + _provenance(plan, names, "imitation protocol/pixels main/enn")
 
-    add_rows(sizes)
-    if all("without_outliers" in r for r in sizes):
-        lines.append("| " + " | ".join([f"*Without the {report['test_outliers']} test sample(s) above "
-                                        f"{report['outlier_n']:g} N:*"] + [""] * len(sizes)) + " |")
-        add_rows([r["without_outliers"] for r in sizes])
-    return "\n".join(lines) + "\n\nDetail:\n\n" + markdown(report), report
+
+def force_table(plan: Plan) -> str:
+    info = _cell_info(plan.root / "force")
+    if not info:
+        return "Not run yet: `python scripts/paper_tables.py run --only force`.\n"
+    report = json.loads((plan.root / "force" / "force.json").read_text())
+    header = ["Test MSE (N²)", *[f"{r['train_samples']:,} samples" for r in report["sizes"]]]
+    rows = [["Force network", *[f"{r['model']['mse_n2']:.4f}" for r in report["sizes"]]],
+            ["Train-set mean", *[f"{r['train_mean']['mse_n2']:.4f}" for r in report["sizes"]]]]
+    paper = [PAPER_FORCE.get(r["size_requested"]) for r in report["sizes"]]
+    rows.append(["Paper: force network", *[f"{p:.4f}" if p is not None else "-" for p in paper]])
+    rows.append(["Paper: baseline", *[f"{PAPER_FORCE_BASELINE:.4f}"] * len(report["sizes"])])
+    if all("without_outliers" in r for r in report["sizes"]):
+        rows.append([f"Force network, without the {report['test_outliers']} test sample(s) above "
+                     f"{report['outlier_n']:g} N", *[f"{r['without_outliers']['model']['mse_n2']:.4f}"
+                                                    for r in report["sizes"]]])
+    text = _table(header, rows)
+    text += (f"\nTest set: {report['test_samples']:,} samples of {report['test_episodes']} episodes, mean force "
+             f"{report['test_force_mean_n']:.3f} N (std {report['test_force_std_n']:.3f} N).\n")
+    return text + _provenance(plan, ["force"], "force")
+
+
+def curves_figure(plan: Plan, path: Path) -> str:
+    """Episode length against training steps per modality (median over seeds, min-max band)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(TARGETS), figsize=(4.6 * len(TARGETS), 6.4), squeeze=False)
+    colours = dict(zip(MODALITIES, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    drawn = 0
+    for col, target in enumerate(TARGETS):
+        top, bottom = axes[0][col], axes[1][col]
+        for obs, label in MODALITIES.items():
+            runs = [_evaluations(plan.root / f"main/{obs}/{target}/seed{s}") for s in SEEDS]
+            runs = [r for r in runs if r]
+            if runs:
+                steps = sorted({e["step"] for r in runs for e in r})
+                values = [[e["mean_episode_length"] for r in runs for e in r if e["step"] == s] for s in steps]
+                top.plot(steps, [statistics.median(v) for v in values], color=colours[obs],
+                         label=f"{label} ({len(runs)} seeds)")
+                top.fill_between(steps, [min(v) for v in values], [max(v) for v in values], color=colours[obs],
+                                 alpha=0.15)
+                drawn += 1
+            if obs in PROTOCOL:
+                evals = _evaluations(plan.root / f"protocol/{obs}/{target}/seed0")
+                if evals:
+                    bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
+                                color=colours[obs], label=f"{label}, paper's protocol (seed 0)")
+                    drawn += 1
+        human = plan.root / "human" / target / "metrics.json"
+        for ax in (top, bottom):
+            if human.is_file():
+                length = json.loads(human.read_text())["summary"]["episode_length"]["mean"]
+                ax.axhline(length, color="k", ls="--", lw=1, label="Human")
+            ax.set_ylim(0, 310)
+            ax.grid(alpha=0.3)
+            ax.set_xlabel("environment steps")
+        top.set_title(f"{target.upper()}, type I: the project's recipe")
+        bottom.set_title(f"{target.upper()}, type I: the paper's protocol")
+        top.set_ylabel("episode length (steps, 10 episodes)")
+        bottom.set_ylabel("episode length (steps, 10 episodes)")
+        for ax in (top, bottom):
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7)
+    if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
+        fig.text(0.5, 0.005, "No human data recorded (cathsim-teleop; see docs/paper.md)", ha="center", fontsize=8)
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return (f"![episode length against training steps]({path.name})\n\n"
+            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). "
+            f"{drawn} curves drawn.\n")
+
+
+def cost_table(plan: Plan) -> str:
+    groups: dict = {}
+    for cell in plan.cells:
+        key = re.sub(r"/seed\d+$", "", cell.name)
+        info = _cell_info(plan.folder(cell))
+        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0})
+        g["cells"] += 1
+        if info:
+            g["measured"].append(info["seconds"] / 60)
+    rows = [[k, g["cells"], f"{g['estimated']:.0f}",
+             f"{statistics.median(g['measured']):.0f} ({len(g['measured'])} finished)" if g["measured"] else "-"]
+            for k, g in groups.items()]
+    return _table(["Cell", "Cells", "Estimated min per cell", "Measured min per cell (median)"], rows)
+
+
+SECTIONS = {"main": main_table, "protocol": protocol_table, "imitation": imitation_table, "force": force_table,
+            "cost": cost_table}
+
+
+def report(plan: Plan, out: Path) -> str:
+    blocks = {name: writer(plan) for name, writer in SECTIONS.items()}
+    figure = out.with_name(f"{out.stem}_learning_curves.png")
+    blocks["curves"] = curves_figure(plan, figure)
+    if out.is_file():
+        text = out.read_text()
+        for name, block in blocks.items():
+            pattern = re.compile(rf"(<!-- paper_tables:{name} -->\n).*?(<!-- /paper_tables:{name} -->)", re.S)
+            text = pattern.sub(lambda m, b=block: m.group(1) + b + m.group(2), text)
+    else:
+        text = "# The paper's experiments\n\n" + "".join(
+            f"## {name}\n\n<!-- paper_tables:{name} -->\n{block}<!-- /paper_tables:{name} -->\n\n"
+            for name, block in blocks.items())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return text
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--expert", action="append", metavar="TARGET=FOLDER", help="expert evaluation per target")
-    parser.add_argument("--image", action="append", metavar="TARGET=FOLDER", help="SAC obs=pixels run per target")
-    parser.add_argument("--bc", action="append", metavar="TARGET=FOLDER", help="cathsim-bc run per target")
-    parser.add_argument("--force", metavar="FOLDER", help="cathsim-force run folder")
-    parser.add_argument("--out", default="outputs/tables", help="folder for imitation.md, force.md, tables.json")
+    parser.add_argument("--root", type=Path, default=Path("outputs/paper"))
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("plan", help="every cell, its state and its cost")
+    r = sub.add_parser("run", help="run the unfinished cells")
+    r.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
+    r.add_argument("--jobs", type=int, default=1, help="cells run at once (2 on a 2-core machine)")
+    r.add_argument("--budget", choices=("full", "tiny"), default=None, help="tiny: a few steps per cell (tests)")
+    rep = sub.add_parser("report", help="the tables and the figure")
+    rep.add_argument("--out", type=Path, default=None, help="markdown file (default ROOT/paper.md)")
     args = parser.parse_args(argv)
     try:
-        runs = {key: parse_pairs(getattr(args, key), f"--{key}") for key, _ in ROWS}
-        imitation, records = imitation_table(runs)
-        force, force_report = force_table(args.force) if args.force else ("not run\n", None)
+        plan = open_plan(args.root, getattr(args, "budget", None))
+        if args.command == "run":
+            names = [c.name for c in plan.cells]
+            for prefix in args.only or []:
+                if not any(n.startswith(prefix) for n in names):
+                    raise UsageError(f"--only {prefix}: no cell starts with it; cells: main/<obs>/<target>/seed<s>, "
+                                     f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0")
+            if args.jobs < 1:
+                raise UsageError(f"--jobs {args.jobs}: give 1 or more")
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "imitation.md").write_text(imitation)
-    (out / "force.md").write_text(force)
-    (out / "tables.json").write_text(json.dumps({"imitation": records, "force": force_report}, indent=2))
-    print("## Imitation learning\n\n" + imitation + "\n## Force prediction\n\n" + force, end="")
-    print(f"tables in {out}")
+    if args.command == "plan":
+        print_plan(plan)
+        return 0
+    if args.command == "run":
+        args.root.mkdir(parents=True, exist_ok=True)
+        (args.root / "plan.json").write_text(json.dumps({"budget": plan.budget}))
+        return run(plan, args.only, args.jobs)
+    out = args.out or args.root / "paper.md"
+    report(plan, out)
+    print(f"wrote {out}")
     return 0
 
 

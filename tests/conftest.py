@@ -25,8 +25,10 @@ def repo_root():
 def load_script(path):
     """A script of scripts/ or experiments/ (not a package) as a module, to test its functions."""
     import importlib.util
+    import sys
 
     spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while it executes
     spec.loader.exec_module(module)
     return module
