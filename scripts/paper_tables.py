@@ -431,8 +431,7 @@ def _provenance(plan: Plan, names: list, only: str) -> str:
     span = dates[0] if dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}"
     budget = "" if plan.budget == "full" else f", budget {plan.budget}"
     return (f"\n{len(infos)} of {len(names)} cells finished, {span}, at commit{'s' if len(commits) > 1 else ''} "
-            f"{', '.join(commits)}{budget}; `python scripts/paper_tables.py run --only "
-            f"{os.path.commonprefix(names).rstrip('/') or '<cell>'}`.\n")
+            f"{', '.join(commits)}{budget}; `python scripts/paper_tables.py run --only {only}`, then `report`.\n")
 
 
 def main_table(plan: Plan) -> str:
@@ -450,8 +449,10 @@ def main_table(plan: Plan) -> str:
             rows.append([label, target.upper(), len(reports), *_metric_cells(_pooled(reports)), per_seed, paper])
     header = ["Modality", "Target", "Seeds", *_metric_header(), "Success per seed (%)", "Paper: Success / SPL (%)"]
     enn = "; ".join(f"{t.upper()} {f} N, {p} cm, {n} steps, safety {s}%" for t, (f, p, n, s) in PAPER_ENN.items())
+    budgets = ", ".join(f"{obs} {steps:,}" for obs, steps in MAIN_STEPS.items())
     return (_table(header, rows) + f"\nThe paper's ENN row, force / path length / episode length / safety: {enn}.\n"
-            + _provenance(plan, names, "main"))
+            f"Steps per run: {budgets}; each seed's best.zip scored on {FINAL_EPISODES} episodes (seeds 10,000+); "
+            f"the metrics pool every episode of the seeds.\n" + _provenance(plan, names, "main"))
 
 
 def _evaluations(folder: Path) -> list:
@@ -498,8 +499,8 @@ def imitation_table(plan: Plan) -> str:
     for target in TARGETS:
         enn_done = all((plan.root / f"main/enn/{target}/seed{s}" / CELL_FILE).is_file() for s in SEEDS)
         # (label, cell folder or None, the paper's success / SPL or None)
-        sources = [("ENN (the best of the 3 seeds)", best_enn_run(plan.root, target) if enn_done else None,
-                    PAPER_MAIN[("enn", target)]),
+        enn = best_enn_run(plan.root, target) if enn_done else None
+        sources = [(f"ENN ({enn.name if enn else 'the best seed'} of 3)", enn, PAPER_MAIN[("enn", target)]),
                    ("Image w/o expert (the paper's protocol)", plan.root / f"protocol/pixels/{target}/seed0",
                     PAPER_MAIN[("pixels", target)]),
                    ("Image w. ENN agent", plan.root / f"imitation/bc/enn_{target}", PAPER_BC[target]),
@@ -609,7 +610,7 @@ def cost_table(plan: Plan) -> str:
         if info:
             g["measured"].append(info["seconds"] / 60)
     rows = [[k, g["cells"], f"{g['estimated']:.0f}",
-             f"{statistics.median(g['measured']):.0f} ({len(g['measured'])} finished)" if g["measured"] else "-"]
+             f"{statistics.median(g['measured']):.1f} ({len(g['measured'])} finished)" if g["measured"] else "-"]
             for k, g in groups.items()]
     return _table(["Cell", "Cells", "Estimated min per cell", "Measured min per cell (median)"], rows)
 
