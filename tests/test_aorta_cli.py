@@ -65,7 +65,7 @@ def test_import_round_trip_of_a_generated_lumen(type1_mm_stl, tmp_path):
     # At the generator's own edge length its triangles suit the wall prisms as they are.
     edge_mm = src.params["edge_length_m"] * 1e3
     proc = run("import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", *sites, f"out={out}",
-               "name=roundtrip", f"edge_mm={edge_mm}")
+               "name=roundtrip", f"edge_mm={edge_mm}", "crop=none")   # crop=auto would remesh what it cuts
     print(proc.stdout, proc.stderr)
     assert proc.returncode == 0, proc.stderr
     assert "assuming millimetres" in proc.stdout
@@ -157,6 +157,16 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     print(assert_one_line_error(proc, "units='furlongs' is not valid", "mm"))
     proc = run("import", f"mesh={stl}", "sites.bca=[0,200,0]")
     print(assert_one_line_error(proc, "import needs entry="))
+
+
+def test_bad_crop_and_caps_values_are_refused_before_any_work(type1_mm_stl, tmp_path):
+    stl, src = type1_mm_stl
+    base = ["import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", f"sites.bca={vec(src.sites['bca'], 1e3)}",
+            f"out={tmp_path / 'x'}"]
+    print(assert_one_line_error(run(*base, "crop=some"), "crop='some' is not valid", "'auto', 'none'"))
+    print(assert_one_line_error(run(*base, "crop_mm=2"), "crop_mm=2 is not valid", "5 mm or more"))
+    print(assert_one_line_error(run(*base, f"caps=[{tmp_path / 'inlet.stl'}]"), "inlet.stl is not a file"))
+    assert not (tmp_path / "x").exists()
 
 
 def test_an_oversize_mesh_is_refused_before_any_grid(type1_mm_stl, tmp_path):

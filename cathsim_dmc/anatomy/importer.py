@@ -24,22 +24,30 @@ go on:
    keeps the clearance; radius = distance to the final wall;
 6. **entry direction**: given, or the principal axis of the lumen within a few
    radii of the entry, pointing towards the sites;
-7. **lumen**: kept as given if its triangles suit the wall prisms (mean edge
+7. **crop** (`crop="auto"`, `crop.crop_to_paths`): the lumen is kept within
+   `crop_margin_m` (20 mm, through the lumen) of the entry-to-site paths, past each site
+   too; the rest (the aortic root, distal branches, stumps) is cut off and capped, so
+   a rough region no path needs cannot stop the import. `crop="none"` keeps it all;
+8. **lumen**: kept as given if its triangles suit the wall prisms (mean edge
    0.8-3.2 mm at the default 4 mm target, no angle below 10 deg, at most 40k
-   triangles), else **remeshed** like the generator (level set of the SDF grid,
-   curvature refinement, relaxation). The vessel is then cut square to the
-   entry direction a few mm behind the entry (locally: a cylinder around the
-   entry axis is subtracted) and capped flat; the cap is the open end where
-   the wire comes in and gets no wall;
-8. **wall**: one prism per lumen triangle extruded outward (as generated
+   triangles) and nothing was cropped, else **remeshed** like the generator (level
+   set of the SDF grid, curvature refinement, relaxation). The vessel is then cut
+   square to the entry direction a few mm behind the entry (locally: a cylinder
+   around the entry axis is subtracted) and capped flat; the cap is the open end
+   where the wire comes in and gets no wall. A fold that local repair leaves gets
+   the remedies in order: remeshing (a kept surface), shorter edges, the surface
+   path's volume rebuild (`repair="auto"`), the volume smoothed around the fold
+   (twice, coarser), and, when the fold lies beyond what the paths need, a tighter
+   crop that cuts it away. When none works, the import stops with one final message;
+9. **wall**: one prism per lumen triangle extruded outward (as generated
    arches);
-9. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
+10. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
    CLI passes `cathsim_dmc.model_check.validate_and_compile`, which adds the
    MuJoCo compile) and only then move the folder into place.
 
 This module runs the pipeline; the steps live in `mesh_repair` (1-3), `mesh_grid` (4),
-`centerlines` (5-6), `open_end` (7) and `volume` (repair=volume); `MeshImportError` is
-defined in `import_error`.
+`centerlines` (5-6), `crop` (7 and the fold remedies), `open_end` (8) and `volume`
+(repair=volume); `MeshImportError` is defined in `import_error`.
 """
 
 from __future__ import annotations
@@ -56,6 +64,7 @@ import numpy as np
 
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
 from cathsim_dmc.anatomy.centerlines import estimate_entry_direction, lumen_centerlines
+from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around
 from cathsim_dmc.anatomy.import_error import MeshImportError, format_point
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.lumen import FoldedSurfaceError
@@ -76,6 +85,12 @@ REPAIR_MODES = ("auto", "surface", "volume")
 AUTO_SURFACE_MAX_TRIANGLES = 100_000   # repair=auto rebuilds larger surfaces through the volume
 VOLUME_GRID_NODES = 10_000_000     # the voxel volume's default spacing aims at this many nodes
 FOLD_RETRY_EDGE_FACTOR = 0.85
+CROP_MODES = ("auto", "none")
+DEFAULT_CROP_MARGIN_M = 0.02       # kept around the paths and past each site, through the lumen
+# The fold remedies, in order, after a remesh at shorter edges: the volume smoothed around the
+# fold over these sigmas (m, at least these many grid nodes) within these radii (m).
+FOLD_SMOOTHING = ((0.001, 2, 0.012), (0.002, 4, 0.016))
+FOLD_CROP_CLEARANCE_M = 0.004      # a fold this far beyond a tighter crop's margin is cut away
 MAX_EXTENT_M = 1.5                 # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
 
 
@@ -96,6 +111,24 @@ class ImportReport:
 
 
 
+TERRACE_FOLD_DEG = 60.0            # an edge folding this much is a step of a voxel staircase...
+TERRACE_SHARE = 0.10               # ...when this share of all edges fold that much
+
+
+def terrace_step_m(v: np.ndarray, f: np.ndarray) -> Optional[float]:
+    """The step length (m) of a voxel staircase surface, or None for a surface that is not one: a
+    smooth lumen folds by a few degrees between neighbouring triangles, a staircase by 90."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(v, f, process=False)
+    angles = np.degrees(mesh.face_adjacency_angles)
+    sharp = angles >= TERRACE_FOLD_DEG
+    if len(angles) == 0 or sharp.mean() < TERRACE_SHARE:
+        return None
+    edges = mesh.face_adjacency_edges[sharp]
+    return float(np.median(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)))
+
+
 def _vec(value, what) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
@@ -112,10 +145,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 sdf_spacing_m: Optional[float] = None, open_end_depth_m: float = 0.005, validate: bool = True,
                 validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
                 overwrite: bool = False, repair: str = "auto", smooth_m: Optional[float] = None,
-                close_gap_m: float = 0.002, trim_branches_m: float = 0.003,
-                log: Callable[[str], None] = print) -> ImportReport:
+                close_gap_m: float = 0.002, trim_branches_m: float = 0.003, crop: str = "auto",
+                crop_margin_m: float = DEFAULT_CROP_MARGIN_M, caps: Sequence = (), log: Callable[[str], None] = print,
+                _started: Optional[float] = None) -> ImportReport:
     """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
-    t0 = time.perf_counter()
+    t0 = time.perf_counter() if _started is None else _started
     path = pathlib.Path(mesh_path)
     out = pathlib.Path(out)
     name = name or path.stem
@@ -131,6 +165,10 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     for key, value in (("smooth_m", smooth_m), ("close_gap_m", close_gap_m), ("trim_branches_m", trim_branches_m)):
         if value is not None and not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{key}={value!r} is not valid; give metres (0 or more)")
+    if crop not in CROP_MODES:
+        raise ValueError(f"crop={crop!r} is not valid; choose one of {list(CROP_MODES)}")
+    if not (np.isfinite(crop_margin_m) and crop_margin_m >= 0.005):
+        raise ValueError(f"crop margin {crop_margin_m * 1e3:g} mm is not valid; give 5 mm or more")
     if remesh not in ("auto", True, False):
         raise ValueError(f"remesh={remesh!r} is not valid; choose one of ['auto', true, false]")
     if not 0.0002 <= wall_thickness_m <= 0.01:
@@ -139,8 +177,13 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         raise ValueError(f"out={str(out)!r} exists and is not empty; pass overwrite=true or another out")
 
     v, f = read_lumen(path)
+    for cap in caps:  # an open (CFD) wall's separate cap surfaces: more triangles of the same surface
+        cv, cf = read_lumen(cap)
+        v, f = np.concatenate([v, cv]), np.concatenate([f, cf + len(v)])
     scale, units_used, note = detect_units(v, units, path)
     notes = [note] if note else []
+    if caps:
+        notes.append(f"{len(caps)} cap surface{'s' * (len(caps) > 1)} added to the wall")
     for n_ in notes:
         log(f"note: {n_}")
     extent_m = float(np.max(np.ptp(v, axis=0))) * scale
@@ -216,6 +259,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         for n_ in tnotes:
             repairs.append(n_)
             log(f"repair: {path}: {n_}")
+        if crop == "auto":
+            grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, crop_margin_m)
+            for n_ in cnotes:
+                repairs.append(n_)
+                log(f"repair: {path}: {n_}")
         # A surface to measure against (radii, the open end): the zero set at about 1 mm.
         step = max(1, int(round(0.001 / h)))
         v, f = zero_surface(grid.values[::step, ::step, ::step], grid.origin, h * step)
@@ -230,6 +278,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
         grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
         centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
+        if crop == "auto":
+            grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, crop_margin_m)
+            for n_ in cnotes:
+                repairs.append(n_)
+                log(f"repair: {path}: {n_}")
     # Checked before the (slow) remesh, with the radii of the lumen as given (from the grid: exact near
     # the wall, within half a node further in; the closest-point query on a 300k-triangle mesh took 30 s).
     profiles = {}
@@ -248,6 +301,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         direction = dir_in / np.linalg.norm(dir_in)
 
     mean_edge, min_angle = triangle_stats(v, f)
+    cropped = any(r.startswith("cropped ") for r in repairs)
     if use_volume:
         do_remesh = True
     elif remesh == "auto":
@@ -258,28 +312,36 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
             reasons.append(f"triangles with angles down to {min_angle:.1f} deg")
         if len(f) > MAX_KEPT_TRIANGLES:
             reasons.append(f"{len(f)} triangles > {MAX_KEPT_TRIANGLES}")
+        step = terrace_step_m(v, f)
+        if step is not None:
+            reasons.append(f"a terraced surface, voxel steps of about {step * 1e3:.1f} mm")
+        if cropped:
+            reasons.append("cropped")
         do_remesh = bool(reasons)
         msg = ("remeshing (" + "; ".join(reasons) + ")") if reasons else \
             f"keeping the {len(f)} triangles (mean edge {mean_edge * 1e3:.2f} mm, min angle {min_angle:.1f} deg)"
         notes.append(msg)
         log(f"note: {msg}")
     else:
-        do_remesh = bool(remesh)
-    # A fold the local repair leaves is retried once with shorter edges (as the generator does).
-    for attempt in range(2):
+        do_remesh = bool(remesh) or cropped   # the surface as given still holds what the crop cut away
+    # A fold the local repair leaves: the remedies, in order, until one works or none is left.
+    tried: List[str] = []
+    smoothing = list(FOLD_SMOOTHING)
+    while True:
         try:
             lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
                                                depth=open_end_depth_m, path=path)
             break
         except FoldedSurfaceError as exc:
             where = format_point(exc.where, 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4)
-            if attempt == 0 and do_remesh:
+            away = distance_to_paths_m(list(centerlines.values()), exc.where)
+            remedy = None
+            if not do_remesh:
+                do_remesh, remedy = True, "remeshed the surface"
+            elif not tried:
                 edge *= FOLD_RETRY_EDGE_FACTOR
-                notes.append(f"a fold at {where} {units_used} survived local repair; remeshing at "
-                             f"{edge * 1e3:.2f} mm edges")
-                log(f"note: {notes[-1]}")
-                continue
-            if repair == "auto" and not use_volume:
+                remedy = f"remeshed at {edge * 1e3:.2f} mm edges"
+            elif not use_volume and repair == "auto":
                 log(f"note: the remeshed surface folds over at {where} {units_used}; rebuilding the lumen from a "
                     f"voxel volume (repair=volume)")
                 return import_mesh(mesh_path, out, sites=sites, entry=entry, entry_direction=entry_direction,
@@ -287,11 +349,27 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                                    edge_length_m=edge_length_m, remesh=remesh, sdf_spacing_m=sdf_spacing_m,
                                    open_end_depth_m=open_end_depth_m, validate=validate, validator=validator,
                                    overwrite=overwrite, repair="volume", smooth_m=smooth_m,
-                                   close_gap_m=close_gap_m, trim_branches_m=trim_branches_m, log=log)
-            hint = (f"edge_mm={0.8 * edge * 1e3:.1f}" if do_remesh else "remesh=true") + \
-                   ("" if use_volume else " or repair=volume")
-            raise MeshImportError(f"{path}: the lumen surface folds over at {where} {units_used} and local repair "
-                                  f"cannot undo it; pass {hint}") from None
+                                   close_gap_m=close_gap_m, trim_branches_m=trim_branches_m, crop=crop,
+                                   crop_margin_m=crop_margin_m, caps=caps, log=log, _started=t0)
+            elif smoothing:
+                sigma, nodes, radius = smoothing.pop(0)
+                sigma = max(sigma, nodes * grid.spacing)
+                grid = smooth_around(grid, exc.where, radius, sigma)
+                remedy = f"smoothed the volume within {radius * 1e3:.0f} mm of it over {sigma * 1e3:.1f} mm"
+            elif crop == "auto" and away - FOLD_CROP_CLEARANCE_M >= 0.005:
+                margin = away - FOLD_CROP_CLEARANCE_M
+                grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, margin)
+                if cnotes:
+                    remedy = cnotes[0].replace("cropped", "cut away", 1)
+            if remedy is None:
+                done = f" (tried: {'; '.join(tried)})" if tried else ""
+                raise MeshImportError(f"{path}: the lumen surface folds over at {where} {units_used}, "
+                                      f"{away * 1e3:.0f} mm from the nearest entry-to-site path, and no remedy undid "
+                                      f"it{done}; the mesh needs repair there (docs/anatomy.md#when-an-import-fails)"
+                                      ) from None
+            tried.append(remedy)
+            notes.append(f"a fold at {where} {units_used} survived local repair: {remedy}")
+            log(f"note: {notes[-1]}")
     prisms = extrude_prisms(lumen, wall_thickness_m)
     wall = lumen.faces[~lumen.cap]
     cl = {k: (p, unsigned_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
@@ -302,7 +380,8 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
               "entry": json_rounded(entry_in), "entry_direction": None if dir_in is None else json_rounded(dir_in),
               "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
               "wall_thickness_m": wall_thickness_m, "edge_length_m": edge, "sdf_spacing_m": h,
-              "remesh": do_remesh, "open_end_depth_m": open_end_depth_m,
+              "remesh": do_remesh, "open_end_depth_m": open_end_depth_m, "crop": crop,
+              "crop_margin_m": crop_margin_m,
               "repair": "volume" if use_volume else "surface"}
     description = (f"Imported lumen surface {path.name} ({units_used}); "
                    f"{'remeshed' if do_remesh else 'triangles kept'}; wall: one "

@@ -3,6 +3,7 @@
     cathsim-aorta build arch_type=3 seed=7 name=my_arch out=my_arch
     cathsim-aorta build preset=bovine arch_height_m=0.04           # into the cache; prints the folder
     cathsim-aorta import mesh=lumen.stl units=mm entry=[30,-110,-5] sites.bca=[-27,74,2] sites.lcca=[-1,79,0]
+    cathsim-aorta import mesh=wall.stl caps=[inlet.stl,outlet1.stl] entry=[...] sites.bca=[...]  # a CFD wall
     cathsim-aorta validate my_arch                                 # or a shipped name: type2
     cathsim-aorta list
 
@@ -28,6 +29,12 @@ import: `mesh=FILE` (STL/OBJ lumen surface), `entry=[x,y,z]` and one or more
   decimation, gaps up to `close_mm=2`, a wall shell; smooths over `smooth_mm=auto`
   (one voxel); cuts side branches narrower than `trim_mm=3` that lead to no site,
   0 keeps them); `auto` (default) tries `surface`, then `volume`.
+  `crop=auto` (default) keeps the lumen within `crop_mm=20` (through the lumen) of
+  the entry-to-site paths, past each site too, and caps the rest; `crop=none` keeps
+  everything. `caps=[FILE,...]`: cap surfaces of an open (CFD) wall, in its units.
+  A surface that folds is remeshed with shorter edges, then smoothed around the
+  fold, then cut away there if no path needs it; the import fails with one final
+  line when none of these works.
 
 Exit status 0 on success, 2 with one `error:` line on bad input (including a
 mesh that cannot be imported), 1 when `validate` finds problems.
@@ -44,7 +51,8 @@ from cathsim_dmc.cli._common import USAGE_ERROR, fail
 COMMANDS = ("build", "import", "validate", "list")
 BUILD_KEYS = ("preset", "arch_type", "seed", "name", "out", "validate", "overwrite")
 IMPORT_KEYS = ("mesh", "entry", "entry_direction", "units", "name", "out", "wall_mm", "edge_mm", "sdf_mm",
-               "remesh", "open_end_mm", "validate", "overwrite", "repair", "smooth_mm", "close_mm", "trim_mm")
+               "remesh", "open_end_mm", "validate", "overwrite", "repair", "smooth_mm", "close_mm", "trim_mm",
+               "crop", "crop_mm", "caps")
 
 
 def _parse_value(text: str):
@@ -197,11 +205,25 @@ def cmd_import(args: List[str]) -> int:
             fail(f"{key}={value!r} is not valid; give millimetres (0 or more){' or auto' if default == 'auto' else ''}")
         return float(value) * 1e-3
 
-    from cathsim_dmc.anatomy.importer import REPAIR_MODES
+    from cathsim_dmc.anatomy.importer import CROP_MODES, DEFAULT_CROP_MARGIN_M, REPAIR_MODES
 
     repair = str(opts.pop("repair", "auto"))
     if repair not in REPAIR_MODES:
         fail(f"repair={repair!r} is not valid; choose one of {list(REPAIR_MODES)}")
+    crop = str(opts.pop("crop", "auto"))
+    if crop not in CROP_MODES:
+        fail(f"crop={crop!r} is not valid; choose one of {list(CROP_MODES)}")
+    crop_margin_m = mm("crop_mm", DEFAULT_CROP_MARGIN_M * 1e3)
+    if crop_margin_m < 0.005:
+        fail(f"crop_mm={crop_margin_m * 1e3:g} is not valid; give 5 mm or more")
+    caps = opts.pop("caps", [])
+    caps = [caps] if isinstance(caps, str) else caps
+    if not isinstance(caps, list) or not all(isinstance(c, str) for c in caps):
+        fail(f"caps={caps!r} is not valid; give a list of mesh files, e.g. caps=[inlet.stl,outlet.stl]")
+    for cap in caps:
+        if not pathlib.Path(cap).is_file():
+            fail(f"caps: {cap} is not a file")
+
     remesh = opts.pop("remesh", "auto")
     if remesh != "auto":
         remesh = _flag({"remesh": remesh}, "remesh", False)
@@ -212,7 +234,7 @@ def cmd_import(args: List[str]) -> int:
         open_end_depth_m=mm("open_end_mm", 5.0), validate=_flag(opts, "validate", True),
         validator=validate_and_compile, overwrite=_flag(opts, "overwrite", False), repair=repair,
         smooth_m=mm_or_zero("smooth_mm", "auto"), close_gap_m=mm_or_zero("close_mm", 2.0),
-        trim_branches_m=mm_or_zero("trim_mm", 3.0))
+        trim_branches_m=mm_or_zero("trim_mm", 3.0), crop=crop, crop_margin_m=crop_margin_m, caps=caps)
     lengths = ", ".join(f"{k} {v * 100:.1f} cm" for k, v in sorted(report.path_length_m.items()))
     print(f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
           f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}")
