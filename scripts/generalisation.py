@@ -104,12 +104,26 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     specialist = root / "runs" / task / "type1" / "checkpoints" / "best.zip"
     if specialist.is_file():
         found["specialist_type1"] = str(specialist)
+    steps = recipe_steps()
     for run in sorted((root / "runs" / task).glob("seed*")):
         for kind in ("best", "last"):
             checkpoint = run / "checkpoints" / f"{kind}.zip"
-            if checkpoint.is_file() and (unfinished or (run / "eval" / "metrics.json").is_file()):
+            # The last policy is the one at the recipe's budget (a run trained with a longer
+            # budget has its checkpoint), so that every seed's last policy is the same recipe's.
+            at_budget = run / "checkpoints" / f"step_{steps}.zip"
+            if kind == "last" and at_budget.is_file():
+                checkpoint = at_budget
+            finished = (run / "eval" / "metrics.json").is_file() or at_budget.is_file()
+            if checkpoint.is_file() and (unfinished or finished):
                 found[f"navigator_{run.name}_{kind}"] = str(checkpoint)
     return found
+
+
+def recipe_steps() -> int:
+    """The navigator recipe's online steps (conf/experiment/navigator.yaml)."""
+    import yaml
+
+    return int(yaml.safe_load((ROOT / "conf" / "experiment" / "navigator.yaml").read_text())["trainer"]["total_timesteps"])
 
 
 def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
