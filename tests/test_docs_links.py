@@ -34,7 +34,7 @@ def test_the_checker_finds_a_missing_file_and_a_missing_heading(check_links, tmp
 
 DOCS_PAGES = {"install", "environment", "model", "anatomy", "observations", "training", "imitation", "benchmarks",
               "cli", "architecture"}
-USER_DOCS_MAX_LINES = 1850  # README plus docs/*.md: about 1,800
+USER_DOCS_MAX_LINES = 1900  # README plus docs/*.md: about 1,850
 
 
 def test_the_docs_are_the_documented_pages_and_stay_short(repo_root):

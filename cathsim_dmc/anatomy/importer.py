@@ -365,7 +365,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 done = f" (tried: {'; '.join(tried)})" if tried else ""
                 raise MeshImportError(f"{path}: the lumen surface folds over at {where} {units_used}, "
                                       f"{away * 1e3:.0f} mm from the nearest entry-to-site path, and no remedy undid "
-                                      f"it{done}; the mesh needs repair there (docs/anatomy.md#when-an-import-fails)"
+                                      f"it{done}; the mesh needs repair there (docs/anatomy.md#your-own-vessel)"
                                       ) from None
             tried.append(remedy)
             notes.append(f"a fold at {where} {units_used} survived local repair: {remedy}")

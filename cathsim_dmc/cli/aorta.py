@@ -238,6 +238,9 @@ def cmd_import(args: List[str]) -> int:
     lengths = ", ".join(f"{k} {v * 100:.1f} cm" for k, v in sorted(report.path_length_m.items()))
     print(f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
           f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}")
+    changes = report.repairs + [n for n in report.notes if n.startswith("a fold at")]
+    if changes:  # everything the import changed, and where, in one place
+        print(f"{report.name}: changed: " + "; ".join(changes))
     if report.validation is not None:
         print(report.validation.summary())
     return 0
