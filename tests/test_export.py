@@ -12,7 +12,9 @@ from cathsim_dmc.export import START_KEY, export_scene
 from shipped import aorta_params
 
 
-@pytest.mark.parametrize("aorta", aorta_params())
+# The export does not depend on the anatomy: type I runs by default, the other aortas with -m slow.
+@pytest.mark.parametrize("aorta", [p if p.values[0] == "type1" else pytest.param(*p.values, marks=pytest.mark.slow)
+                                   for p in aorta_params()])
 def test_exported_scene_reloads_and_steps(aorta, tmp_path):
     env = tasks.load("bca", aorta, seed=0)
     env.reset()
