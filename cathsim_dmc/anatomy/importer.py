@@ -206,6 +206,16 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
 
     use_volume = repair == "volume"
     repairs: List[str] = []
+
+    def crop_lumen(grid, centerlines):
+        if crop != "auto":
+            return grid
+        grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, crop_margin_m)
+        for n_ in cnotes:
+            repairs.append(n_)
+            log(f"repair: {path}: {n_}")
+        return grid
+
     if not use_volume:
         try:
             v_closed, f_closed, repairs = repair_lumen(v, f, path, units_used)
@@ -259,11 +269,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         for n_ in tnotes:
             repairs.append(n_)
             log(f"repair: {path}: {n_}")
-        if crop == "auto":
-            grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, crop_margin_m)
-            for n_ in cnotes:
-                repairs.append(n_)
-                log(f"repair: {path}: {n_}")
+        grid = crop_lumen(grid, centerlines)
         # A surface to measure against (radii, the open end): the zero set at about 1 mm.
         step = max(1, int(round(0.001 / h)))
         v, f = zero_surface(grid.values[::step, ::step, ::step], grid.origin, h * step)
@@ -278,11 +284,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
         grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
         centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
-        if crop == "auto":
-            grid, cnotes = crop_to_paths(grid, list(centerlines.values()), entry_m, crop_margin_m)
-            for n_ in cnotes:
-                repairs.append(n_)
-                log(f"repair: {path}: {n_}")
+        grid = crop_lumen(grid, centerlines)
     # Checked before the (slow) remesh, with the radii of the lumen as given (from the grid: exact near
     # the wall, within half a node further in; the closest-point query on a 300k-triangle mesh took 30 s).
     profiles = {}
@@ -327,6 +329,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     # A fold the local repair leaves: the remedies, in order, until one works or none is left.
     tried: List[str] = []
     smoothing = list(FOLD_SMOOTHING)
+    shortened = False
     while True:
         try:
             lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
@@ -338,7 +341,8 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
             remedy = None
             if not do_remesh:
                 do_remesh, remedy = True, "remeshed the surface"
-            elif not tried:
+            elif not shortened:
+                shortened = True
                 edge *= FOLD_RETRY_EDGE_FACTOR
                 remedy = f"remeshed at {edge * 1e3:.2f} mm edges"
             elif not use_volume and repair == "auto":
