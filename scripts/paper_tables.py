@@ -3,11 +3,16 @@
     python scripts/paper_tables.py plan                  # every cell: state, estimated and measured cost
     python scripts/paper_tables.py run --jobs 2          # run what is not finished (a killed run resumes)
     python scripts/paper_tables.py run --only main/enn   # cells whose name starts with this
-    python scripts/paper_tables.py report --out docs/paper.md
+    python scripts/paper_tables.py report --out docs/paper.md   # from ROOT and the record
 
 A cell is one tool run (cathsim-train, -collect, -bc or -force) in ROOT/<cell name>. It is
 finished when ROOT/<cell>/cell.json exists (written when the tool exits cleanly, with the
-commit, the command and the wall time), and finished cells are skipped. A training cell cut
+commit, the command and the wall time) or when the record holds it, and finished cells are
+skipped. The record (--record; for the full budget experiments/paper_results.json, in the
+repository, so the results outlive the machine that ran them) keeps each finished cell's
+numbers: its final report's metrics, its evaluation curve and its cost. `report` reads a
+cell from ROOT when it is there and from the record otherwise; `--record new.json` starts
+the experiments afresh. A training cell cut
 short resumes from its last checkpoint; a collection continues its dataset; a cloning or
 force cell starts again. Two `run` processes (or --jobs 2) share the work: a cell being run
 holds ROOT/<cell>/running.
@@ -91,6 +96,8 @@ TINY = {  # --budget tiny: every cell on a few steps and short episodes
 }
 CELL_FILE = "cell.json"
 LOCK_FILE = "running"
+FULL_RECORD = ROOT / "experiments" / "paper_results.json"
+_RECORD_LOCK = threading.Lock()
 
 
 class UsageError(Exception):
@@ -112,12 +119,32 @@ class Plan:
     root: Path
     budget: str = "full"
     cells: list = field(default_factory=list)
+    record: Path | None = None       # the finished cells' numbers (default: ROOT/results.json)
+
+    def __post_init__(self):
+        self.record = self.record or self.root / "results.json"
 
     def folder(self, cell: Cell) -> Path:
         return self.root / cell.name
 
+    def recorded(self) -> dict:
+        if not self.record.is_file():
+            return {}
+        stamp = self.record.stat()
+        key = (stamp.st_mtime_ns, stamp.st_size)
+        if getattr(self, "_cache", (None,))[0] != key:
+            self._cache = (key, json.loads(self.record.read_text()))
+        return self._cache[1]
+
     def done(self, cell: Cell) -> bool:
-        return (self.folder(cell) / CELL_FILE).is_file()
+        return (self.folder(cell) / CELL_FILE).is_file() or cell.name in self.recorded()
+
+    def result(self, name: str) -> dict | None:
+        """A finished cell's numbers: from ROOT when it is there, else from the record."""
+        folder = self.root / name
+        if (folder / CELL_FILE).is_file():
+            return _result_from(folder)
+        return self.recorded().get(name)
 
     def by_name(self, name: str) -> Cell:
         return next(c for c in self.cells if c.name == name)
@@ -149,17 +176,17 @@ def protocol_cell(obs: str, target: str) -> Cell:
                 minutes=150 if obs == "internal" else 400, demos=False)
 
 
-def best_enn_run(root: Path, target: str) -> Path:
+def best_enn_run(plan: Plan, target: str) -> Path:
     """The ENN seed whose final report scored best (success, then SPL; the lowest seed on a tie)."""
     scored = []
     for seed in SEEDS:
-        summary = _report(root / f"main/enn/{target}/seed{seed}")["summary"]
+        summary = plan.result(f"main/enn/{target}/seed{seed}")["summary"]
         scored.append((-summary["success_pct"]["mean"], -summary["spl_pct"]["mean"], seed))
-    return root / f"main/enn/{target}/seed{min(scored)[2]}"
+    return plan.root / f"main/enn/{target}/seed{min(scored)[2]}"
 
 
-def build_plan(root: Path, budget: str = "full") -> Plan:
-    plan = Plan(root, budget)
+def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> Plan:
+    plan = Plan(root, budget, record=record)
     add = plan.cells.append
     data = lambda name: str(root / "imitation" / "data" / name)  # noqa: E731
     for obs in ("internal", "enn"):
@@ -174,20 +201,22 @@ def build_plan(root: Path, budget: str = "full") -> Plan:
                  _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_{target}')}", f"bc.epochs={BC_EPOCHS}",
                         f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
                  minutes=35, needs=(f"imitation/data/expert_{target}",)))
-    for obs in ("pixels_mask", "pixels", "internal_pixels"):
-        for seed in SEEDS:
-            for target in TARGETS:
-                add(main_cell(obs, target, seed))
+    # The ENN agent's dataset as soon as its seeds finish: it needs their checkpoints, which
+    # only the machine that trained them has.
     for target in TARGETS:
         enn_seeds = tuple(f"main/enn/{target}/seed{s}" for s in SEEDS)
         add(Cell(f"imitation/data/enn_{target}", "collect",
-                 lambda root, t=target: [f"task={t}", "aorta=type1", f"policy={best_enn_run(root, t)}",
+                 lambda root, t=target: [f"task={t}", "aorta=type1", f"policy={best_enn_run(plan, t)}",
                                          f"episodes={EXPERT_EPISODES}", "seed=0", "progress_bar=false"],
                  minutes=15, needs=enn_seeds))
         add(Cell(f"imitation/bc/enn_{target}", "bc",
                  _fixed(f"task={target}", "aorta=type1", f"data={data(f'enn_{target}')}", f"bc.epochs={BC_EPOCHS}",
                         f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
                  minutes=35, needs=(f"imitation/data/enn_{target}",)))
+    for obs in ("pixels_mask", "pixels", "internal_pixels"):
+        for seed in SEEDS:
+            for target in TARGETS:
+                add(main_cell(obs, target, seed))
     for target in TARGETS:
         add(Cell(f"imitation/data/expert_more_{target}", "collect",
                  _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={MORE_EXPERT_EPISODES}",
@@ -293,8 +322,10 @@ def run_cell(plan: Plan, cell: Cell) -> bool:
             return False
         count = len(attempts.read_text().splitlines())
         (folder / CELL_FILE).write_text(json.dumps(
-            {"cell": cell.name, "tool": cell.tool, "command": " ".join(cmd), "commit": _commit(),
+            {"cell": cell.name, "tool": cell.tool, "command": " ".join([Path(cmd[0]).name, *cmd[1:]]),
+             "commit": _commit(),
              "budget": plan.budget, "seconds": round(seconds, 1), "attempts": count, "finished": _now()}, indent=1))
+        save_record(plan, cell.name)
         print(f"[{cell.name}] finished in {seconds / 60:.1f} min", flush=True)
         return True
     finally:
@@ -357,7 +388,7 @@ def print_plan(plan: Plan) -> None:
     total = 0.0
     print(f"{'cell':40s} {'tool':8s} {'state':8s} estimated  measured")
     for cell in plan.cells:
-        info = _cell_info(plan.folder(cell))
+        info = _cell_info(plan, cell.name)
         measured = f"{info['seconds'] / 60:.0f} min" if info else ""
         if not info:
             total += cell.minutes
@@ -365,35 +396,74 @@ def print_plan(plan: Plan) -> None:
     print(f"left: about {total / 60:.1f} h of job time (two jobs share the 2 cores)")
 
 
-def open_plan(root: Path, budget: str | None) -> Plan:
-    """The plan of `root`; the first run records its budget, and a different one is refused."""
-    record = root / "plan.json"
-    if record.is_file():
-        recorded = json.loads(record.read_text())["budget"]
+def open_plan(root: Path, budget: str | None, record: Path | None = None) -> Plan:
+    """The plan of `root`; the first run records its budget, and a different one is refused.
+    The record defaults to experiments/paper_results.json for the full budget, and to
+    ROOT/results.json for another."""
+    started = root / "plan.json"
+    if started.is_file():
+        recorded = json.loads(started.read_text())["budget"]
         if budget and budget != recorded:
             raise UsageError(f"--budget {budget}: {root} was started with --budget {recorded} (choose another --root)")
         budget = recorded
     budget = budget or "full"
-    return build_plan(root, budget)
+    return build_plan(root, budget, record or (FULL_RECORD if budget == "full" else None))
+
+
+# -- the record ----------------------------------------------------------------------------
+def _read_evaluations(folder: Path) -> list:
+    path = folder / "evaluations.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def _result_from(folder: Path) -> dict:
+    """A finished cell's numbers, as the record keeps them: the cell's info, its final report's
+    summary and per-episode metrics, its evaluation curve, and the force report."""
+    from cathsim_dmc.metrics import METRIC_COLUMNS
+
+    result = {"info": json.loads((folder / CELL_FILE).read_text())}
+    for path in (folder / "eval" / "metrics.json", folder / "metrics.json"):
+        if path.is_file():
+            report = json.loads(path.read_text())
+            result["summary"] = report["summary"]
+            result["per_episode"] = [{k: e[k] for k in METRIC_COLUMNS} for e in report["per_episode"]]
+            break
+    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length")} for e in _read_evaluations(folder)]
+    if curve:
+        result["evaluations"] = curve
+    if (folder / "force.json").is_file():
+        result["force"] = json.loads((folder / "force.json").read_text())
+    return result
+
+
+def save_record(plan: Plan, name: str) -> None:
+    """Add a finished cell to the record (one JSON file, rewritten whole: a reader never sees
+    half of it)."""
+    import fcntl
+
+    with _RECORD_LOCK:
+        plan.record.parent.mkdir(parents=True, exist_ok=True)
+        with open(plan.record.with_suffix(".lock"), "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # another `run` process may finish a cell too
+            recorded = plan.recorded()
+            recorded[name] = _result_from(plan.root / name)
+            tmp = plan.record.with_suffix(".tmp")
+            # one line per cell: a new cell is one new line in the repository's history
+            lines = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(recorded.items())]
+            tmp.write_text("{\n" + ",\n".join(lines) + "\n}\n")
+            tmp.replace(plan.record)
 
 
 # -- report --------------------------------------------------------------------------------
-def _cell_info(folder: Path) -> dict | None:
-    path = folder / CELL_FILE
-    return json.loads(path.read_text()) if path.is_file() else None
-
-
-def _report(folder: Path) -> dict:
-    for path in (folder / "eval" / "metrics.json", folder / "metrics.json"):
-        if path.is_file():
-            return json.loads(path.read_text())
-    raise FileNotFoundError(f"{folder}: no eval/metrics.json")
+def _cell_info(plan: Plan, name: str) -> dict | None:
+    result = plan.result(name)
+    return result["info"] if result else None
 
 
 def _finished(plan: Plan, name: str) -> dict | None:
-    """The final report of a finished cell."""
-    folder = plan.root / name
-    return _report(folder) if (folder / CELL_FILE).is_file() else None
+    """The final report (summary and per-episode metrics) of a finished cell."""
+    result = plan.result(name)
+    return result if result and "summary" in result else None
 
 
 def _pooled(reports: list) -> dict:
@@ -423,7 +493,7 @@ def _table(header: list, rows: list) -> str:
 
 
 def _provenance(plan: Plan, names: list, only: str) -> str:
-    infos = [i for i in (_cell_info(plan.root / n) for n in names) if i]
+    infos = [i for i in (_cell_info(plan, n) for n in names) if i]
     if not infos:
         return ""
     commits = sorted({i["commit"] for i in infos})
@@ -455,9 +525,10 @@ def main_table(plan: Plan) -> str:
             f"the metrics pool every episode of the seeds.\n" + _provenance(plan, names, "main"))
 
 
-def _evaluations(folder: Path) -> list:
-    path = folder / "evaluations.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+def _evaluations(plan: Plan, name: str) -> list:
+    """A cell's evaluation curve: live from ROOT (a running cell's too), else from the record."""
+    live = _read_evaluations(plan.root / name)
+    return live or (plan.recorded().get(name) or {}).get("evaluations", [])
 
 
 def protocol_table(plan: Plan) -> str:
@@ -466,7 +537,7 @@ def protocol_table(plan: Plan) -> str:
         for obs in PROTOCOL:
             name = f"protocol/{obs}/{target}/seed0"
             names.append(name)
-            evals = _evaluations(plan.root / name)
+            evals = _evaluations(plan, name)
             curve = ", ".join(f"{e['success_rate'] * 100:.0f}" for e in evals) or "-"
             last = f"{evals[-1]['step']:,}" if evals else "0"
             report = _finished(plan, name)
@@ -486,36 +557,34 @@ def protocol_table(plan: Plan) -> str:
     return _table(header, rows) + _provenance(plan, names, "protocol")
 
 
-def _imitation_row(target: str, label: str, folder: Path | None, paper: tuple | None) -> list:
+def _imitation_row(target: str, label: str, report: dict | None, paper: tuple | None) -> list:
     paper_cell = "{} / {}".format(*paper) if paper else "-"
-    if folder is None:
+    if report is None:
         return [target.upper(), label, *["not run"] * 6, 0, paper_cell]
-    report = _report(folder)
     return [target.upper(), label, *_metric_cells(_pooled([report])), len(report["per_episode"]), paper_cell]
 
 
 def imitation_table(plan: Plan) -> str:
     rows, names = [], []
     for target in TARGETS:
-        enn_done = all((plan.root / f"main/enn/{target}/seed{s}" / CELL_FILE).is_file() for s in SEEDS)
-        # (label, cell folder or None, the paper's success / SPL or None)
-        enn = best_enn_run(plan.root, target) if enn_done else None
-        sources = [(f"ENN ({enn.name if enn else 'the best seed'} of 3)", enn, PAPER_MAIN[("enn", target)]),
-                   ("Image w/o expert (the paper's protocol)", plan.root / f"protocol/pixels/{target}/seed0",
+        enn_done = all(plan.done(plan.by_name(f"main/enn/{target}/seed{s}")) for s in SEEDS)
+        # (label, cell name or None, the paper's success / SPL or None)
+        enn = best_enn_run(plan, target).relative_to(plan.root).as_posix() if enn_done else None
+        sources = [(f"ENN ({enn.rsplit('/', 1)[1] if enn else 'the best seed'} of 3)", enn,
+                    PAPER_MAIN[("enn", target)]),
+                   ("Image w/o expert (the paper's protocol)", f"protocol/pixels/{target}/seed0",
                     PAPER_MAIN[("pixels", target)]),
-                   ("Image w. ENN agent", plan.root / f"imitation/bc/enn_{target}", PAPER_BC[target]),
-                   ("Image w. scripted expert", plan.root / f"imitation/bc/expert_{target}", None)]
+                   ("Image w. ENN agent", f"imitation/bc/enn_{target}", PAPER_BC[target]),
+                   ("Image w. scripted expert", f"imitation/bc/expert_{target}", None)]
         if target == "lcca":
-            sources.append(("Image w. scripted expert, 1,000 episodes", plan.root / "imitation/bc/expert1000_lcca",
-                            None))
-        for label, folder, paper in sources:
-            if folder is not None:
-                names.append(str(folder.relative_to(plan.root)))
-            rows.append(_imitation_row(target, label, folder if folder and (folder / CELL_FILE).is_file() else None,
-                                       paper))
-        human = plan.root / "human" / target
-        rows.append(_imitation_row(target, "Human (cathsim-teleop)", human if (human / "metrics.json").is_file()
-                                   else None, None))
+            sources.append(("Image w. scripted expert, 1,000 episodes", "imitation/bc/expert1000_lcca", None))
+        for label, name, paper in sources:
+            if name is not None:
+                names.append(name)
+            rows.append(_imitation_row(target, label, _finished(plan, name) if name else None, paper))
+        human = plan.root / "human" / target / "metrics.json"
+        rows.append(_imitation_row(target, "Human (cathsim-teleop)",
+                                   json.loads(human.read_text()) if human.is_file() else None, None))
     header = ["Target", "Method", *_metric_header(), "Episodes", "Paper: Success / SPL (%)"]
     note = ""
     if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
@@ -525,10 +594,10 @@ def imitation_table(plan: Plan) -> str:
 
 
 def force_table(plan: Plan) -> str:
-    info = _cell_info(plan.root / "force")
-    if not info:
+    result = plan.result("force")
+    if not result:
         return "Not run yet: `python scripts/paper_tables.py run --only force`.\n"
-    report = json.loads((plan.root / "force" / "force.json").read_text())
+    report = result["force"]
     header = ["Test MSE (N²)", *[f"{r['train_samples']:,} samples" for r in report["sizes"]]]
     rows = [["Force network", *[f"{r['model']['mse_n2']:.4f}" for r in report["sizes"]]],
             ["Train-set mean", *[f"{r['train_mean']['mse_n2']:.4f}" for r in report["sizes"]]]]
@@ -558,7 +627,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
     for col, target in enumerate(TARGETS):
         top, bottom = axes[0][col], axes[1][col]
         for obs, label in MODALITIES.items():
-            runs = [_evaluations(plan.root / f"main/{obs}/{target}/seed{s}") for s in SEEDS]
+            runs = [_evaluations(plan, f"main/{obs}/{target}/seed{s}") for s in SEEDS]
             runs = [r for r in runs if r]
             if runs:
                 steps = sorted({e["step"] for r in runs for e in r})
@@ -569,7 +638,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
                                  alpha=0.15)
                 drawn += 1
             if obs in PROTOCOL:
-                evals = _evaluations(plan.root / f"protocol/{obs}/{target}/seed0")
+                evals = _evaluations(plan, f"protocol/{obs}/{target}/seed0")
                 if evals:
                     bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
                                 color=colours[obs], label=f"{label}, paper's protocol (seed 0)")
@@ -604,7 +673,7 @@ def cost_table(plan: Plan) -> str:
     groups: dict = {}
     for cell in plan.cells:
         key = re.sub(r"/seed\d+$", "", cell.name)
-        info = _cell_info(plan.folder(cell))
+        info = _cell_info(plan, cell.name)
         g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0})
         g["cells"] += 1
         if info:
@@ -640,6 +709,9 @@ def report(plan: Plan, out: Path) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("outputs/paper"))
+    parser.add_argument("--record", type=Path, default=None,
+                        help="the finished cells' numbers (default: experiments/paper_results.json for the full "
+                             "budget, ROOT/results.json for tiny); cells it holds are not run again")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("plan", help="every cell, its state and its cost")
     r = sub.add_parser("run", help="run the unfinished cells")
@@ -650,7 +722,7 @@ def main(argv=None) -> int:
     rep.add_argument("--out", type=Path, default=None, help="markdown file (default ROOT/paper.md)")
     args = parser.parse_args(argv)
     try:
-        plan = open_plan(args.root, getattr(args, "budget", None))
+        plan = open_plan(args.root, getattr(args, "budget", None), args.record)
         if args.command == "run":
             names = [c.name for c in plan.cells]
             for prefix in args.only or []:

@@ -3,6 +3,7 @@ killed one resumes, the tables are written from what finished, and bad input is 
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -139,6 +140,16 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     assert "1 of 30 cells finished" in text and info["commit"] in text
     assert (tmp_path / "paper_learning_curves.png").stat().st_size > 0
 
+    # The record outlives the run folder: a new machine with the record alone skips the cell
+    # and writes the same row.
+    recorded = json.loads((tmp_path / "results.json").read_text())
+    assert list(recorded) == [cell] and recorded[cell]["info"] == info
+    shutil.rmtree(tmp_path / "main")
+    again = subprocess.run(run, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and cell not in again.stdout and not folder.exists()
+    assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(doc)).returncode == 0
+    assert doc.read_text() == text
+
 
 @pytest.mark.slow
 def test_the_whole_plan_runs_on_a_tiny_budget(paper, repo_root, tmp_path):
@@ -148,7 +159,7 @@ def test_the_whole_plan_runs_on_a_tiny_budget(paper, repo_root, tmp_path):
     assert all(plan.done(c) for c in plan.cells)
     # The ENN-agent dataset comes from the ENN seed that scored best.
     manifest = json.loads((tmp_path / "imitation/data/enn_bca/manifest.json").read_text())
-    assert str(paper.best_enn_run(tmp_path, "bca")) in manifest["policy"]
+    assert str(paper.best_enn_run(plan, "bca")) in manifest["policy"]
     out = tmp_path / "paper.md"
     assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(out)).returncode == 0
     text = out.read_text()
