@@ -229,16 +229,17 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
                          f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
                          f"{_cell([mean(m, 'force_n') for m in reports], '{:.2f}')} | "
                          f"{_cell([mean(m, 'episode_length') for m in reports])} | " + " | ".join(by_type) + " |")
-        columns = [*SHIPPED, *[f"corpus_{c}" for c in CORPUS]]
-        lines += ["", f"### {task.upper()}: success % on the shipped aortas and the imported corpus", "",
-                  "| policy | " + " | ".join(c.replace("corpus_", "corpus: ") for c in columns) + " |",
-                  "|---" * (len(columns) + 1) + "|"]
-        for label, folders in groups.items():
-            cells = []
-            for column in columns:
-                rates = [m["summary"]["success_pct"]["mean"] for m in (_metrics(f / column) for f in folders) if m]
-                cells.append(_cell(rates))
-            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        # One row per anatomy, one column per policy that was scored on any of them.
+        anatomies = [*SHIPPED, *[f"corpus_{c}" for c in CORPUS]]
+        table = {label: [_cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
+                         for a in anatomies] for label, folders in groups.items()}
+        table = {label: cells for label, cells in table.items() if any(c != "-" for c in cells)}
+        if table:
+            lines += ["", f"### {task.upper()}: success % on the shipped aortas and the imported corpus", "",
+                      "| anatomy | " + " | ".join(table) + " |", "|---" * (len(table) + 1) + "|"]
+            for i, anatomy in enumerate(anatomies):
+                lines.append(f"| {anatomy.replace('corpus_', 'corpus: ')} | "
+                             + " | ".join(cells[i] for cells in table.values()) + " |")
         lines.append("")
     text = "\n".join(lines)
     if out:
