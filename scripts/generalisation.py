@@ -44,6 +44,10 @@ HELDOUT_NAME = "heldout"
 # The pool the recipe was tuned on and the shipped seed is chosen on (never the held-out one).
 TUNING = dict(pool_size=50, pool_seed=500, order="cycle", obliquity_deg=[39.7, 13.79])
 TUNING_NAME = "tuning"
+# The held-out pool again, with a real system's measurement errors in the roadmap preset: an
+# EM-tracked tip (about 1 mm) and a CTA-to-fluoroscopy registration (about 2 mm).
+NOISE = dict(tracking_noise_m=0.001, registration_error_m=0.002)
+NOISY_NAME = "heldout_noise"
 CORPUS = ("noisy", "decimated", "pinched", "stump", "wall_shell")
 EVAL_SEED = 10_000
 TARGETS = ("bca", "lcca")
@@ -132,7 +136,8 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
     from cathsim_dmc.evaluation import evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
 
-    anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"])}
+    anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
+                 NOISY_NAME: ("random", HELDOUT, episodes)}
     anatomies.update({name: (name, None, shipped_episodes) for name in SHIPPED})
     if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
         anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
@@ -145,6 +150,8 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
         for anatomy, (aorta, params, count) in anatomies.items():
             if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
                 continue  # the tuning pool chooses the seed to ship
+            if anatomy == NOISY_NAME and not isinstance(policy, CheckpointPolicy):
+                continue  # the expert reads the simulator's state, not the roadmap
             out = root / "scores" / task / policy_name / anatomy
             if (out / "metrics.json").is_file():
                 continue
@@ -153,6 +160,8 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
                 kwargs["aorta_params"] = params
             if isinstance(policy, CheckpointPolicy):
                 kwargs.update(obs=policy.obs_preset, **policy.image_options, **policy.env_options)
+                if anatomy == NOISY_NAME:
+                    kwargs.update(NOISE)
             print(f"{task} {policy_name} {anatomy}: {count} episodes", flush=True)
             env = CathSimEnv(**kwargs)
             try:
@@ -210,8 +219,9 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
         groups = _groups(scores)
         lines += [f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
                   "",
-                  "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III "
+                  "| success % with noise |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
             if not reports:
@@ -228,7 +238,9 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
             lines.append(f"| {label} | {len(reports)} | {_cell([mean(m, 'success_pct') for m in reports])} | "
                          f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
                          f"{_cell([mean(m, 'force_n') for m in reports], '{:.2f}')} | "
-                         f"{_cell([mean(m, 'episode_length') for m in reports])} | " + " | ".join(by_type) + " |")
+                         f"{_cell([mean(m, 'episode_length') for m in reports])} | " + " | ".join(by_type) + " | "
+                         + _cell([mean(m, "success_pct") for m in (_metrics(f / NOISY_NAME) for f in folders) if m])
+                         + " |")
         # One row per anatomy, one column per policy that was scored on any of them.
         anatomies = [*SHIPPED, *[f"corpus_{c}" for c in CORPUS]]
         table = {label: [_cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
