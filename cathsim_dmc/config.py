@@ -162,9 +162,6 @@ class ExperimentalConfig:
     normalize_observations: bool = False
     # extra observables, always in `info`: no training result measured with them
     extra_observations: List[str] = _number([], choices=EXTRA_OBSERVATIONS)
-    # the scripted expert's end game in the demonstrations and labels (relay: one a policy
-    # can observe, cathsim_dmc/experts.py): docs/training.md#unseen-anatomy
-    expert_end_game: str = _number("strokes", choices=("strokes", "relay"))
 
 
 @dataclass

@@ -17,11 +17,7 @@ interventionalist does with an angled wire:
   branch wall (its bend reaches across most of the lumen). Turn the bend towards the
   branch axis while stroking the wire past the target and back, one, two, then three
   lumen radii (each deeper stroke leaves the wire in another posture) in quarter-radius
-  steps; then retreat out of the branch and enter again. With `end_game="relay"`
-  (experimental) the strokes are a relay instead, keyed on what a policy can observe: in at
-  a quarter radius per step until two lumen radii past the target, out until back at its
-  depth, and again, with no retreat. A policy that sees the roadmap and the robot's rates
-  can learn this one; the counted strokes and retreats depend on the expert's own counters.
+  steps; then retreat out of the branch and enter again.
 
 With a catheter over the wire (`Navigate(catheter=...)`; actions then have a third entry,
 the catheter's carriage) the expert leaves it parked at the sheath unless the path turns
@@ -72,14 +68,9 @@ class CenterlineExpert:
         lumen of the path to the target.
     """
 
-    END_GAMES = ("strokes", "relay")
-
     def __init__(self, lookahead_radii: float = 1.5, aligned_rad: float = np.deg2rad(35),
                  stall_steps: int = 6, min_progress_m: float = 1e-3, retract_steps: int = 2,
-                 lost_margin_m: float = 2e-3, end_game: str = "strokes"):
-        if end_game not in self.END_GAMES:
-            raise ValueError(f"end_game={end_game!r}; choose one of {list(self.END_GAMES)}")
-        self.end_game = end_game
+                 lost_margin_m: float = 2e-3):
         self.lookahead_radii = lookahead_radii
         self.aligned_rad = aligned_rad
         self.stall_steps = stall_steps
@@ -94,7 +85,6 @@ class CenterlineExpert:
         # back, at most stroke_step_radii lumen radii per control step.
         self.stroke_radii = 1.0
         self.stroke_step_radii = 0.25
-        self.relay_radii = 2.0  # the relay's turning point past the target, in lumen radii
         self.backoffs_before_reset = 8
         # With a catheter (see the module docstring).
         self.catheter_turn_deg = 80.0
@@ -126,7 +116,6 @@ class CenterlineExpert:
         self._max_rotation_step = task.robot.max_rotation_speed_rad_s * task.control_timestep
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
         self._schedule = self._stroke_schedule()
-        self._relay_direction = 1.0
         self._has_catheter = getattr(task, "catheter", None) is not None
         self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > self.catheter_turn_deg
         self._catheter_phase = "wire"
@@ -265,8 +254,6 @@ class CenterlineExpert:
         to_axis = -component_across(tip - self._target, self._target_axis)
         angle = signed_angle_rad(bend, component_across(to_axis, shaft), shaft)
         rotation = float(np.clip(self.axis_gain * angle / self._max_rotation_step, -1.0, 1.0))
-        if self.end_game == "relay":
-            return np.array([self._relay_insertion(tip), rotation], dtype=np.float32)
 
         schedule = self._schedule
         phase = self._at_depth - self.settle_steps - 1
@@ -277,16 +264,6 @@ class CenterlineExpert:
         past = schedule[phase]
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))
         return np.array([insertion, rotation], dtype=np.float32)
-
-    def _relay_insertion(self, tip) -> float:
-        """In until `relay_radii` lumen radii past the target, out until back at its depth."""
-        past = float(np.dot(tip - self._target, self._target_axis))
-        if self._relay_direction > 0 and past >= self.relay_radii * self._target_radius:
-            self._relay_direction = -1.0
-        elif self._relay_direction < 0 and past <= 0.0:
-            self._relay_direction = 1.0
-        step = min(self._max_insertion_step, self.stroke_step_radii * self._target_radius)
-        return self._relay_direction * step / self._max_insertion_step
 
     def _stroke_schedule(self):
         """How far past the target the end game pushes the wire at each of its steps (built at reset).

@@ -93,18 +93,3 @@ def test_expert_reaches_every_target_of_every_aorta(environments, aorta, target,
                                             f"from the target, diverged={info['diverged']}, escaped={info['escaped']}")
     assert info["target_distance_m"] <= 0.004 and reward == pytest.approx(10.0)
     assert start_m > 0.1  # from the descending aorta, not a start near the target
-
-
-def test_the_relay_end_game_turns_at_the_target_and_two_radii_past_it(bca_type3):
-    with pytest.raises(ValueError, match="strokes"):
-        CenterlineExpert(end_game="sweep")
-    env, expert = bca_type3, CenterlineExpert(end_game="relay")
-    env.reset(seed=0)
-    expert.reset(env)
-    target, axis, radius = expert._target, expert._target_axis, expert._target_radius
-    at = lambda past: target + past * axis  # noqa: E731  (a tip this far past the target's depth)
-    step = min(expert._max_insertion_step, expert.stroke_step_radii * radius) / expert._max_insertion_step
-    assert 0 < step < 1  # a stroke moves in steps smaller than a full-speed one
-    turns = [expert._relay_insertion(at(past)) for past in (0.0, radius, 2.1 * radius, radius, 0.1 * radius, -0.1 * radius,
-                                                            radius)]
-    assert turns == pytest.approx([step, step, -step, -step, -step, step, step])

@@ -57,8 +57,7 @@ def run(cfg) -> dict:
     train_kwargs, eval_kwargs = env_kwargs(cfg, training=True), env_kwargs(cfg)
     agent_options = pick(eval_kwargs, AGENT_OPTIONS)
     image_options = pick(eval_kwargs, IMAGE_OPTIONS)
-    demos = dict(OmegaConf.to_container(cfg.demos, resolve=True),
-                 expert_end_game=cfg.experimental.expert_end_game)
+    demos = OmegaConf.to_container(cfg.demos, resolve=True)
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
     if not resume:
         log.info("recipe: %s: batch_size %d, %s", recipe(HydraConfig.get().runtime.choices), cfg.algo.batch_size,

@@ -120,19 +120,18 @@ class Transitions:
         return len(self.actions)
 
 
-def expert_transitions(env, episodes: int, seed: int = 0, policy=None, progress: str | None = None,
-                       end_game: str = "strokes") -> Transitions:
+def expert_transitions(env, episodes: int, seed: int = 0, policy=None, progress: str | None = None) -> Transitions:
     """Roll out the scripted expert (or `policy(observation, env)`) in `env`, a `CathSimEnv`
     built like the training environment, for `episodes` episodes seeded `seed`, `seed + 1`...
     `progress` labels a progress bar over the episodes (None: none)."""
     from cathsim_dmc.experts import CenterlineExpert
 
-    policy = policy or CenterlineExpert(end_game=end_game)
+    policy = policy or CenterlineExpert()
     return _rollouts(env, episodes, seed, lambda: (lambda obs, env, step: (policy(obs, env), True)), progress)
 
 
 def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200,
-                         progress: str | None = None, end_game: str = "strokes") -> Transitions:
+                         progress: str | None = None) -> Transitions:
     """Demonstrations from where the student goes: in each episode `student(observation)`
     drives for a random number of steps (0 to `max_student_steps`, drawn from `seed`), then
     the scripted expert takes over to the end of the episode. The expert's part is returned.
@@ -146,7 +145,7 @@ def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student
     """
     from cathsim_dmc.experts import CenterlineExpert
 
-    expert = CenterlineExpert(end_game=end_game)
+    expert = CenterlineExpert()
     rng = np.random.default_rng(seed)
 
     def episode_policy():
@@ -177,8 +176,7 @@ class Labels:
         return len(self.actions)
 
 
-def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None,
-                  end_game: str = "strokes") -> Labels:
+def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None) -> Labels:
     """DAgger's data (Ross et al., 2011): `student(observation)` drives `episodes` episodes
     (seeds `seed`, `seed + 1`, ...) and the scripted expert, asked at every step, labels
     each state with the action it would take there. The expert follows the student's
@@ -187,7 +185,7 @@ def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | No
     progress bar (None: none)."""
     from cathsim_dmc.experts import CenterlineExpert
 
-    expert = CenterlineExpert(end_game=end_game)
+    expert = CenterlineExpert()
     observations, actions = [], []
 
     def act(obs, env, step):
