@@ -49,6 +49,7 @@ TUNING_NAME = "tuning"
 NOISE = dict(tracking_noise_m=0.001, registration_error_m=0.002)
 NOISY_NAME = "heldout_noise"
 CORPUS = ("noisy", "decimated", "pinched", "stump", "wall_shell")
+ANATOMIES = (*SHIPPED, *[f"corpus_{c}" for c in CORPUS])  # the table beside the held-out pool
 EVAL_SEED = 10_000
 TARGETS = ("bca", "lcca")
 
@@ -211,7 +212,7 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
     """The tables (markdown) from ROOT/scores; `arch_types` (held-out arch name -> I, II,
     III) defaults to the pool's own."""
     types = arch_types
-    lines = []
+    lines, shipped = [], {}
     for task in TARGETS:
         scores = root / "scores" / task
         if not scores.is_dir():
@@ -241,17 +242,19 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
                          f"{_cell([mean(m, 'episode_length') for m in reports])} | " + " | ".join(by_type) + " | "
                          + _cell([mean(m, "success_pct") for m in (_metrics(f / NOISY_NAME) for f in folders) if m])
                          + " |")
-        # One row per anatomy, one column per policy that was scored on any of them.
-        anatomies = [*SHIPPED, *[f"corpus_{c}" for c in CORPUS]]
-        table = {label: [_cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
-                         for a in anatomies] for label, folders in groups.items()}
-        table = {label: cells for label, cells in table.items() if any(c != "-" for c in cells)}
-        if table:
-            lines += ["", f"### {task.upper()}: success % on the shipped aortas and the imported corpus", "",
-                      "| anatomy | " + " | ".join(table) + " |", "|---" * (len(table) + 1) + "|"]
-            for i, anatomy in enumerate(anatomies):
-                lines.append(f"| {anatomy.replace('corpus_', 'corpus: ')} | "
-                             + " | ".join(cells[i] for cells in table.values()) + " |")
+        # One row per anatomy, one column per (target, policy) scored on any of them.
+        for label, folders in groups.items():
+            cells = [_cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
+                     for a in ANATOMIES]
+            if any(c != "-" for c in cells):
+                shipped[f"{task.upper()}: {label}"] = cells
+        lines.append("")
+    if shipped:
+        lines += ["### Success % on the shipped aortas and the imported corpus", "",
+                  "| anatomy | " + " | ".join(shipped) + " |", "|---" * (len(shipped) + 1) + "|"]
+        for i, anatomy in enumerate(ANATOMIES):
+            lines.append(f"| {anatomy.replace('corpus_', 'corpus: ')} | "
+                         + " | ".join(cells[i] for cells in shipped.values()) + " |")
         lines.append("")
     text = "\n".join(lines)
     if out:
@@ -307,7 +310,7 @@ def ship(root: Path, task: str) -> Path:
     run = root / "runs" / task / seed
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *SHIPPED, *[f"corpus_{c}" for c in CORPUS])
+    anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {HELDOUT_NAME: "held out: pool 1000, 100 arches",
              NOISY_NAME: "held out, with 1 mm tracking and 2 mm registration noise",
              TUNING_NAME: "tuning: pool 500, 50 arches"}

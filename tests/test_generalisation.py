@@ -27,7 +27,7 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_p
     _write(scores / "expert" / "heldout", [True, True, True, True], aortas)
     _write(scores / "expert" / "type2", [True, False], ["type2", "type2"])
     text = script.report(tmp_path, tmp_path / "table.md", arch_types=types)
-    heldout, shipped_table = text.split("success % on the shipped aortas")
+    heldout, shipped_table = text.split("Success % on the shipped aortas")
     rows = {line.split(" | ")[0].strip("| "): line for line in heldout.splitlines() if line.startswith("| ")}
     best = rows["navigator, best.zip"].split(" | ")
     assert best[1] == "3"                            # seeds
@@ -37,7 +37,7 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_p
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there
     # (the expert's 1 of 2 on type II), and a dash where nothing was scored.
     lines = [line for line in shipped_table.splitlines() if line.startswith("| ")]
-    assert lines[0] == "| anatomy | expert |"
+    assert lines[0] == "| anatomy | BCA: expert |"
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ")[1].strip("| ") for line in lines[1:]}
     assert rows["type2"] == "50" and rows["type1"] == "-" and rows["corpus: noisy"] == "-"
     assert (tmp_path / "table.md").read_text() == text
