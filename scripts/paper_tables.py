@@ -589,7 +589,8 @@ def imitation_table(plan: Plan) -> str:
     note = ""
     if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
         note = ("\nNo human data was recorded. To add the Human row, drive `cathsim-teleop task=bca aorta=type1` "
-                f"(it needs a display) and copy its run folder to {plan.root}/human/bca (and lcca).\n")
+                "(it needs a display) and copy its run folder to ROOT/human/bca (and lcca), ROOT being the --root "
+                "of `paper_tables.py` (default outputs/paper).\n")
     return _table(header, rows) + note + _provenance(plan, names, "imitation protocol/pixels main/enn")
 
 

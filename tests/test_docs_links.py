@@ -33,8 +33,8 @@ def test_the_checker_finds_a_missing_file_and_a_missing_heading(check_links, tmp
 
 
 DOCS_PAGES = {"install", "environment", "model", "anatomy", "observations", "training", "imitation", "benchmarks",
-              "cli", "architecture"}
-USER_DOCS_MAX_LINES = 1900  # README plus docs/*.md: about 1,850
+              "cli", "architecture", "paper"}
+USER_DOCS_MAX_LINES = 2100  # README plus docs/*.md: about 2,050 with the paper's tables
 
 
 def test_the_docs_are_the_documented_pages_and_stay_short(repo_root):
