@@ -13,8 +13,8 @@ repository, so the results outlive the machine that ran them) keeps each finishe
 numbers: its final report's metrics, its evaluation curve and its cost. `report` reads a
 cell from ROOT when it is there and from the record otherwise; `--record new.json` starts
 the experiments afresh. A training cell cut short resumes from its last checkpoint; a
-collection continues its dataset; a cloning or force cell starts again. Two `run` processes (or --jobs 2) share the work: a cell being run
-holds ROOT/<cell>/running.
+collection continues its dataset; a cloning or force cell starts again. Two `run`
+processes (or --jobs 2) share the work: a cell being run holds ROOT/<cell>/running.
 
 The cells:
   main/<obs>/<target>/seed<s>    the main table: the project's recipe on type I, 5 modalities x
