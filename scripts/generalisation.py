@@ -15,7 +15,8 @@ exists); `--specialist` runs the default recipe on type I into ROOT/runs/<task>/
 - policies: each navigator seed's best.zip and, beside it, its last policy (last.zip);
   the scripted expert; the type I specialist; the shipped navigator (`policy=pretrained`);
 - anatomies: the held-out pool (`pool_seed` 1000: 100 arches of types I-III with the
-  published obliquity distribution, each visited once), the nine shipped aortas and the
+  published obliquity distribution, each visited once), the same pool with the roadmap's
+  tracking and registration noise (navigators only), the nine shipped aortas and the
   segmentation corpus of the tests (tests/segmentation_corpus.py), imported with
   `cathsim-aorta import` and default options.
 
@@ -312,7 +313,8 @@ def ship(root: Path, task: str) -> Path:
     best = json.loads((run / "checkpoints" / "best.json").read_text())
     anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {HELDOUT_NAME: "held out: pool 1000, 100 arches",
-             NOISY_NAME: "held out, with 1 mm tracking and 2 mm registration noise",
+             NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
+                         f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
              TUNING_NAME: "tuning: pool 500, 50 arches"}
     rows = "\n".join(f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |" for anatomy in anatomies
                       if _metrics(chosen / anatomy))
