@@ -273,7 +273,7 @@ def _summary(folder: Path) -> str:
             f"{mean('episode_length'):.0f} steps")
 
 
-WIDE_BRANCH_LIMIT = """- In the wide BCA (12.5 mm in the shipped arches) the tip can come to rest on the wall 4-8 mm
+WIDE_BRANCH_LIMIT = """- In the wide BCA (12.5 mm in the shipped arches) the tip can come to rest on the wall 4-8.5 mm
   from the target, outside the 4 mm zone, and stay there: the scripted expert strokes the wire
   past the target and back to get off the wall, which this policy did not learn
   (docs/training.md#unseen-anatomy). Of the seeds' {failed} failed episodes on the held-out and
