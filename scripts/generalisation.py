@@ -129,7 +129,8 @@ def recipe_steps() -> int:
     """The navigator recipe's online steps (conf/experiment/navigator.yaml)."""
     import yaml
 
-    return int(yaml.safe_load((ROOT / "conf" / "experiment" / "navigator.yaml").read_text())["trainer"]["total_timesteps"])
+    recipe = yaml.safe_load((ROOT / "conf" / "experiment" / "navigator.yaml").read_text())
+    return int(recipe["trainer"]["total_timesteps"])
 
 
 def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
