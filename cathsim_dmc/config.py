@@ -255,6 +255,7 @@ REMOVED = {
     "demos.bc_filter": "none",
     "task.insertion_limit_margin_m": None,
     "reward.aim_weight": 0.0,
+    "experimental.expert_end_game": "strokes",
 }
 
 

@@ -157,7 +157,8 @@ def test_every_ranged_option_has_a_default_inside_its_range():
     assert [spec.name for spec in dataclasses.fields(config.TrainerConfig) if spec.metadata]
 
 
-# A run folder's config.yaml as the version before the typed schema wrote it (demos=none).
+# A run folder's config.yaml as older versions wrote it (demos=none), with every option since
+# moved or removed.
 OLD_RUN_CONFIG = """
 task: {target: bca, delta_m: 0.004, success_reward: 10.0, dense: true, max_steps: 20, insertion_limit_margin_m: null,
        physics: fast, catheter: null}
@@ -176,6 +177,7 @@ resume: null
 trainer: {total_timesteps: 30, n_envs: 1, eval_every: 0, eval_episodes: 1, final_eval_episodes: 1,
           confirm_episodes: 0, checkpoint_every: 10, save_replay_buffer: false, device: auto, torch_threads: 1,
           progress_bar: false, video: false, normalize_observations: true, final_policy: best}
+experimental: {expert_end_game: strokes}
 """
 
 
@@ -199,6 +201,7 @@ def test_an_old_run_config_has_its_moved_keys_translated_and_its_inert_removed_k
     ({"algo": {"actor_learning_rate_scale": 0.3}}, "algo.actor_learning_rate_scale=0.3"),
     ({"task": {"insertion_limit_margin_m": 0.02}}, "task.insertion_limit_margin_m=0.02"),
     ({"reward": {"name": "aim", "aim_weight": 2.0}}, "reward=aim"),
+    ({"experimental": {"expert_end_game": "relay"}}, "experimental.expert_end_game='relay'"),
 ])
 def test_an_old_run_that_used_a_removed_option_says_so_in_one_line(change, expected):
     old = OmegaConf.merge(OmegaConf.create(OLD_RUN_CONFIG), change)
