@@ -43,7 +43,8 @@ class ObservationSettings:
 
 
 # What a preset can enable (the task has a few more, enabled one by one as extra observations).
-PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel", "roadmap", "robot_state")
+PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel", "roadmap", "robot_state",
+                      "target_depth_time")
 
 
 def load_presets(folder) -> dict:

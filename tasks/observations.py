@@ -54,6 +54,7 @@ def task_observables(task, settings: ObservationSettings,
             [robot.pose_features(physics), robot.rate_features(physics), catheter_features()])),
         # The registered roadmap around the tracked tip, in the tip's frame (tasks/roadmap.py).
         "roadmap": observable.Generic(roadmap.features),
+        "target_depth_time": observable.Generic(roadmap.depth_time),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         "guidewire_mask": observable.Generic(top_view.mask),
         "tip_position": observable.MJCFFeature("xpos", guidewire.tip_site),

@@ -27,6 +27,12 @@ completing the right-handed frame. Lengths are in centimetres. In order:
 
 The nearest point is tracked from step to step within a window along the line (as a
 navigation system would), so it cannot jump to a parallel stretch of vessel.
+
+`target_depth_time` (experimental, preset `roadmap_timed`) is a clock the same system can
+keep: how many control steps the tracked tip has stayed at the target's depth (within one
+full-speed insertion step of it along the roadmap), over `DEPTH_CLOCK_STEPS`, at most 1.
+With it, the scripted expert's end game (strokes past the target and back, timed by its
+own count of the same steps) becomes a function of what the policy observes.
 """
 
 from __future__ import annotations
@@ -40,6 +46,8 @@ ROADMAP_SIZE = 3 * len(AHEAD_MM) + 3 + 3 + 2 + 1 + 1
 CM = 0.01
 # The nearest point is searched this far behind and ahead of the last one, in metres.
 TRACK_BACK_M, TRACK_AHEAD_M = 0.01, 0.03
+# target_depth_time's unit: control steps (the expert's end game takes about 50 in a BCA).
+DEPTH_CLOCK_STEPS = 100
 
 
 class RoadmapTracker:
@@ -54,6 +62,8 @@ class RoadmapTracker:
         self._random_state = np.random.RandomState(0)
         self._offset = np.zeros(3)
         self._s = None
+        self._time_s = None  # the physics time of the step the clock last counted
+        self._at_depth_steps = 0
 
     def start(self, random_state) -> None:
         """A new episode: a new registration offset; the nearest point is searched afresh."""
@@ -61,6 +71,8 @@ class RoadmapTracker:
         self._offset = (random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0
                         else np.zeros(3))
         self._s = None
+        self._time_s = None
+        self._at_depth_steps = 0
 
     def _tracked(self, position) -> np.ndarray:
         if self.tracking_noise_m > 0:
@@ -69,6 +81,24 @@ class RoadmapTracker:
         return position - self._offset
 
     def features(self, physics) -> np.ndarray:
+        """The roadmap features (a new tracking measurement at every call)."""
+        features = self._measure(physics)
+        time_s = physics.time()
+        if time_s != self._time_s:  # the first measurement of a step moves the clock
+            self._time_s = time_s
+            remaining_m = features[-2] * 10 * CM
+            task = self._task
+            at_depth = remaining_m < task.robot.max_insertion_speed_m_s * task.control_timestep
+            self._at_depth_steps = self._at_depth_steps + 1 if at_depth else 0
+        return features
+
+    def depth_time(self, physics) -> np.ndarray:
+        """`target_depth_time`: steps at the target's depth so far, over DEPTH_CLOCK_STEPS (at most 1)."""
+        if physics.time() != self._time_s:
+            self.features(physics)
+        return np.array([min(self._at_depth_steps, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
+
+    def _measure(self, physics) -> np.ndarray:
         task, line = self._task, self._line
         base_site = physics.bind(task.guidewire.tip_base_site)
         tip = self._tracked(task.tip_position_m(physics))
