@@ -118,3 +118,33 @@ def test_tracking_noise_changes_every_step():
 def test_a_negative_noise_is_refused_in_one_line():
     with pytest.raises(ValueError, match="tracking_noise_m=-0.001 must be a finite number >= 0"):
         CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=-0.001)
+
+
+def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
+    """obs=roadmap_timed: target_depth_time is the expert's own count of steps at the
+    target's depth (until the expert's first retreat, where it starts its count afresh),
+    and the roadmap beside it is the roadmap preset's."""
+    from cathsim_dmc.experts import CenterlineExpert
+    from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS
+
+    env = CathSimEnv(task="bca", aorta="type3", obs="roadmap_timed")
+    plain = CathSimEnv(task="bca", aorta="type3", obs="roadmap")
+    expert = CenterlineExpert()
+    obs, _ = env.reset(seed=0)
+    plain_obs, _ = plain.reset(seed=0)
+    clocks = []
+    for _ in range(300):
+        assert set(obs) == {"roadmap", "robot_state", "target_depth_time"}
+        np.testing.assert_array_equal(obs["roadmap"], plain_obs["roadmap"])
+        action = expert(obs, env)
+        if expert._retreat_to is not None:
+            break
+        clocks.append((round(float(obs["target_depth_time"][0]) * DEPTH_CLOCK_STEPS), expert._at_depth))
+        obs, _, terminated, truncated, _ = env.step(action)
+        plain_obs, *_ = plain.step(action)
+        if terminated or truncated:
+            break
+    assert [clock for clock, _ in clocks] == [count for _, count in clocks]
+    assert max(clock for clock, _ in clocks) > expert.settle_steps  # the end game was played
+    env.close()
+    plain.close()
