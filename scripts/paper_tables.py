@@ -674,14 +674,17 @@ def cost_table(plan: Plan) -> str:
     for cell in plan.cells:
         key = re.sub(r"/seed\d+$", "", cell.name)
         info = _cell_info(plan, cell.name)
-        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0})
+        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0, "finished": 0})
         g["cells"] += 1
         if info:
-            g["measured"].append(info["seconds"] / 60)
-    rows = [[k, g["cells"], f"{g['estimated']:.0f}",
-             f"{statistics.median(g['measured']):.1f} ({len(g['measured'])} finished)" if g["measured"] else "-"]
+            g["finished"] += 1
+            if info.get("attempts", 1) == 1:  # a resumed cell's killed attempts were not timed
+                g["measured"].append(info["seconds"] / 60)
+    rows = [[k, g["cells"], g["finished"], f"{g['estimated']:.0f}",
+             f"{statistics.median(g['measured']):.1f} ({len(g['measured'])})" if g["measured"] else "-"]
             for k, g in groups.items()]
-    return _table(["Cell", "Cells", "Estimated min per cell", "Measured min per cell (median)"], rows)
+    return _table(["Cell", "Cells", "Finished", "Estimated min per cell",
+                   "Measured min per cell (median of the cells finished in one attempt)"], rows)
 
 
 SECTIONS = {"main": main_table, "protocol": protocol_table, "imitation": imitation_table, "force": force_table,
