@@ -125,12 +125,31 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     return found
 
 
-def recipe_steps() -> int:
-    """The navigator recipe's online steps (conf/experiment/navigator.yaml)."""
+def _recipe() -> dict:
     import yaml
 
-    recipe = yaml.safe_load((ROOT / "conf" / "experiment" / "navigator.yaml").read_text())
-    return int(recipe["trainer"]["total_timesteps"])
+    return yaml.safe_load((ROOT / "conf" / "experiment" / "navigator.yaml").read_text())
+
+
+def recipe_steps() -> int:
+    """The navigator recipe's online steps (conf/experiment/navigator.yaml)."""
+    return int(_recipe()["trainer"]["total_timesteps"])
+
+
+def recipe_obs() -> str:
+    """The navigator recipe's observation preset (conf/experiment/navigator.yaml)."""
+    for entry in _recipe()["defaults"]:
+        if isinstance(entry, dict) and "override /obs" in entry:
+            return entry["override /obs"]
+    raise ValueError("conf/experiment/navigator.yaml sets no observation preset")
+
+
+# What each navigator preset observes, for the model card.
+PRESET_CARD = {
+    "roadmap": "the registered roadmap around the tracked tip, in the tip's frame, and the robot's encoders",
+    "roadmap_timed": "the registered roadmap around the tracked tip, in the tip's frame, the robot's encoders, "
+                     "and the steps the tip has stayed at the target's depth",
+}
 
 
 def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
@@ -322,11 +341,15 @@ def ship(root: Path, task: str) -> Path:
     missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
     if missing:
         rows += f"\n\nNot scored yet: {', '.join(missing)}."
-    command = f"cathsim-train +experiment=navigator task={task} {seed.replace('seed', 'seed=')}"
-    steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
     from omegaconf import OmegaConf
 
-    budget = int(OmegaConf.load(run / "config.yaml").trainer.total_timesteps)
+    config = OmegaConf.load(run / "config.yaml")
+    obs = config.obs.name
+    command = f"cathsim-train +experiment=navigator task={task} {seed.replace('seed', 'seed=')}"
+    if obs != recipe_obs():  # trained before the recipe's preset changed: its own
+        command += f" obs={obs}"
+    steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    budget = int(config.trainer.total_timesteps)
     stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
     failed, near = _failures_near_target(scores)
     wide_branch = WIDE_BRANCH_LIMIT.format(failed=failed, near=near) if task == "bca" else ""
@@ -340,8 +363,8 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
     cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
     python -c "from cathsim_dmc.pretrained import load_pretrained; policy = load_pretrained('{task}')"
 
-- **Observation preset**: `roadmap` (the registered roadmap around the tracked tip, in the tip's
-  frame, and the robot's encoders; docs/observations.md#roadmap), trained without noise.
+- **Observation preset**: `{obs}` ({PRESET_CARD.get(obs, "docs/observations.md")};
+  docs/observations.md#roadmap), trained without noise.
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
   `best.zip` of the run{stopped}: step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
