@@ -28,7 +28,7 @@ completing the right-handed frame. Lengths are in centimetres. In order:
 The nearest point is tracked from step to step within a window along the line (as a
 navigation system would), so it cannot jump to a parallel stretch of vessel.
 
-`target_depth_time` (experimental, preset `roadmap_timed`) is a clock the same system can
+`target_depth_time` (preset `roadmap_timed`) is a clock the same system can
 keep: how many control steps the tracked tip has stayed at the target's depth (within one
 full-speed insertion step of it along the roadmap), over `DEPTH_CLOCK_STEPS`, at most 1.
 With it, the scripted expert's end game (strokes past the target and back, timed by its
