@@ -157,6 +157,7 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
     from cathsim_dmc.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.evaluation import evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.observables import OBSERVATION_PRESETS
 
     anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
                  NOISY_NAME: ("random", HELDOUT, episodes)}
@@ -172,8 +173,9 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
         for anatomy, (aorta, params, count) in anatomies.items():
             if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
                 continue  # the tuning pool chooses the seed to ship
-            if anatomy == NOISY_NAME and not isinstance(policy, CheckpointPolicy):
-                continue  # the expert reads the simulator's state, not the roadmap
+            if anatomy == NOISY_NAME and not (isinstance(policy, CheckpointPolicy)
+                                              and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled):
+                continue  # the noise is the roadmap's: the expert and the specialist do not read it
             out = root / "scores" / task / policy_name / anatomy
             if (out / "metrics.json").is_file():
                 continue
