@@ -35,6 +35,7 @@ import json
 import statistics
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -358,6 +359,8 @@ def ship(root: Path, task: str) -> Path:
     wide_branch = WIDE_BRANCH_LIMIT.format(failed=failed, near=near) if task == "bca" else ""
     chosen_by = (f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1
                  else "the only seed trained so far")
+    preset = textwrap.fill(f"- **Observation preset**: `{obs}` ({PRESET_CARD.get(obs, 'see')}; "
+                           f"docs/observations.md#roadmap), trained without noise.", width=96, subsequent_indent="  ")
     card = f"""# Pretrained navigator: {task.upper()}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
@@ -366,8 +369,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
     cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
     python -c "from cathsim_dmc.pretrained import load_pretrained; policy = load_pretrained('{task}')"
 
-- **Observation preset**: `{obs}` ({PRESET_CARD.get(obs, "docs/observations.md")};
-  docs/observations.md#roadmap), trained without noise.
+{preset}
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
   `best.zip` of the run{stopped}: step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
