@@ -86,8 +86,8 @@ class RoadmapTracker:
         time_s = physics.time()
         if time_s != self._time_s:  # the first measurement of a step moves the clock
             self._time_s = time_s
-            remaining_m = features[-2] * 10 * CM
             task = self._task
+            remaining_m = self._line.length_m - self._s  # as the expert measures it
             at_depth = remaining_m < task.robot.max_insertion_speed_m_s * task.control_timestep
             self._at_depth_steps = self._at_depth_steps + 1 if at_depth else 0
         return features
