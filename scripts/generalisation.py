@@ -359,8 +359,9 @@ def ship(root: Path, task: str) -> Path:
     wide_branch = WIDE_BRANCH_LIMIT.format(failed=failed, near=near) if task == "bca" else ""
     chosen_by = (f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1
                  else "the only seed trained so far")
-    preset = textwrap.fill(f"- **Observation preset**: `{obs}` ({PRESET_CARD.get(obs, 'see')}; "
-                           f"docs/observations.md#roadmap), trained without noise.", width=96, subsequent_indent="  ")
+    what = f"{PRESET_CARD[obs]}; " if obs in PRESET_CARD else ""
+    preset = textwrap.fill(f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained "
+                           f"without noise.", width=96, subsequent_indent="  ")
     card = f"""# Pretrained navigator: {task.upper()}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
