@@ -9,12 +9,13 @@ each episode (``aorta="random"``).
 
 from __future__ import annotations
 
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.paths import available_aortas, conf_root
 
 TARGETS = ("bca", "lcca")
 ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
 ENTRY_POINT = "cathsim_dmc.gym:make_registered"
 RANDOM_AORTA = "random"  # tasks.load's randomised anatomy (cathsim_dmc.tasks.randomized)
+CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 
 
 def env_id(task: str, aorta: str) -> str:
@@ -24,6 +25,19 @@ def env_id(task: str, aorta: str) -> str:
 def all_tasks() -> tuple:
     """Every (target, shipped aorta) pair, as `cathsim_dmc.tasks.ALL_TASKS`."""
     return tuple((target, aorta) for aorta in available_aortas() for target in TARGETS)
+
+
+def aorta_choices() -> tuple:
+    """What `aorta=` accepts by name: every shipped aorta, `custom` and `random`."""
+    return available_aortas() + (CUSTOM_AORTA, RANDOM_AORTA)
+
+
+def config_choices(group: str) -> list:
+    """The options of a config group of conf/ (its YAML files' names), sorted. For `obs`,
+    these are the keys of `cathsim_dmc.observables.OBSERVATION_PRESETS`, which loads the
+    same files; the command-line tools check their arguments against this list before
+    anything heavier is imported."""
+    return sorted(path.stem for path in (conf_root() / group).glob("*.yaml"))
 
 
 def register_all() -> None:

@@ -12,24 +12,17 @@ from pathlib import Path
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.physics import DEFAULT_PHYSICS, physics_settings
 from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
-from cathsim_dmc.paths import available_aortas
-from cathsim_dmc.registry import TARGETS, all_tasks
+from cathsim_dmc.registry import CUSTOM_AORTA, TARGETS, aorta_choices, all_tasks
 from cathsim_dmc.tasks.environment import NavigationEnvironment
 from cathsim_dmc.tasks.navigate import Navigate, check_options
 from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment
 
-CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
 # Straight shaft between the sheath's tip and the wire's shaped tip at the start, metres:
 # with the 3 mm sheath depth and the 15 mm angled tip, the tip starts 7-9 mm past the `entry`
 # site (see `Navigate`).
 TIP_START_PAST_SHEATH_M = 0.002
 ALL_TASKS = all_tasks()
-
-
-def aorta_choices() -> tuple:
-    """What `aorta=` accepts by name: every shipped aorta, `custom` and `random`."""
-    return available_aortas() + (CUSTOM_AORTA, RANDOM_AORTA)
 
 
 def validate(task: str, aorta: str, obs: str = "internal") -> None:

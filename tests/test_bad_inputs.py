@@ -173,6 +173,25 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
         assert left <= HYDRA_FILES, f"{sorted(left)} written before the error"
 
 
+
+@pytest.mark.parametrize("tool, arg", [("eval", "obs=nope"), ("train", "aorta=nope"), ("collect", "policy=nope"),
+                                       ("train", "algo.batch_size=0")])
+def test_a_refused_command_line_loads_no_simulator_or_network(tool, arg, tmp_path):
+    # The choices and ranges are checked from conf/ alone, so a typo costs about a second,
+    # not the import of MuJoCo, SciPy and torch.
+    code = (f"import sys\nsys.argv = ['cathsim-{tool}', {arg!r}]\nfrom cathsim_dmc.cli.{tool} import main\n"
+            "try:\n    main()\nexcept SystemExit as exit:\n    print(exit.code)\n"
+            "print(sorted(m for m in ('mujoco', 'dm_control', 'scipy', 'torch') if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert result.stdout.split("\n")[:2] == ["2", "[]"], (result.stdout, result.stderr[-2000:])
+
+
+def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
+    from cathsim_dmc.observables import OBSERVATION_PRESETS
+    from cathsim_dmc.registry import config_choices
+
+    assert config_choices("obs") == sorted(OBSERVATION_PRESETS)
+
 def _corrupt_manifest_collect(tmp_path):
     from cathsim_dmc.supervised.collect import collect
 

@@ -171,14 +171,15 @@ def _run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Calla
     check_overrides(sys.argv[1:], argv_choices, paths_allowed)
     check_composes(config_name, sys.argv[1:])
 
-    from cathsim_dmc.run_files import FolderInUse
-    from cathsim_dmc.wall_field import NativeBuildError
-
     def guarded(cfg):
         # Hydra prints a traceback for exceptions from the task; a bad value in the
         # config is the user's input, so it gets our one-line error (SystemExit passes),
         # as does a machine without the C compiler that physics=fast needs once, and a run
-        # folder another run holds.
+        # folder another run holds. Imported here: a refused command line never loads
+        # MuJoCo, SciPy or torch.
+        from cathsim_dmc.run_files import FolderInUse
+        from cathsim_dmc.wall_field import NativeBuildError
+
         try:
             return task_function(cfg)
         except (ValueError, FileNotFoundError, MemoryError, NativeBuildError, FolderInUse) as error:

@@ -112,7 +112,7 @@ def _fmt(terms: dict) -> str:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices
 
     run_hydra(run, "bc", {"task": lambda: TARGETS, "aorta": aorta_choices})
 

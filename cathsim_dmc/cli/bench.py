@@ -167,7 +167,7 @@ def run(cfg) -> list:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.tasks import TARGETS
+    from cathsim_dmc.registry import TARGETS
 
     run_hydra(run, "bench", {"task": lambda: TARGETS})
 

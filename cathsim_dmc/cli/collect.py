@@ -51,13 +51,12 @@ def run(cfg) -> dict:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.policies import BUILTIN_POLICIES
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices, config_choices
 
     run_hydra(run, "collect", {
         "task": lambda: TARGETS, "aorta": aorta_choices,
-        "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]), "obs": lambda: sorted(OBSERVATION_PRESETS),
+        "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]), "obs": lambda: config_choices("obs"),
     }, paths_allowed=("policy",))
 
 

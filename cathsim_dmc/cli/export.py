@@ -32,7 +32,7 @@ def export(cfg) -> Path:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices
 
     run_hydra(export, "export", {"task": lambda: TARGETS, "aorta": aorta_choices})
 

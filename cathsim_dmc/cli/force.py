@@ -80,7 +80,7 @@ def run(cfg) -> dict:
 
 def main():
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices
 
     run_hydra(run, "force", {"task": lambda: TARGETS, "aorta": aorta_choices})
 

@@ -84,7 +84,7 @@ def teleop(cfg) -> dict | None:
 
 def main():
     from cathsim_dmc.cli._common import fail, run_hydra
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices
 
     if not has_display():
         fail(NO_DISPLAY)

@@ -105,17 +105,6 @@ def run(cfg) -> dict:
     return report
 
 
-def _group_choices(group: str):
-    """The options of a config group (its YAML files), for validating the command line."""
-
-    def choices() -> list:
-        from cathsim_dmc.paths import conf_root
-
-        return sorted(path.stem for path in (conf_root() / group).glob("*.yaml"))
-
-    return choices
-
-
 def resume_in_place(argv: list) -> list:
     """`resume=<run>` continues in the run's own folder: Hydra's log of the resumed part
     goes there too (appended), unless the command line names another hydra.run.dir. The
@@ -148,13 +137,13 @@ def main():
     import sys
 
     from cathsim_dmc.cli._common import run_hydra
-    from cathsim_dmc.observables import OBSERVATION_PRESETS
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices, config_choices
 
     sys.argv[1:] = explicit_algo(resume_in_place(sys.argv[1:]))
     run_hydra(run, "train", {
-        "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: sorted(OBSERVATION_PRESETS),
-        "algo": _group_choices("algo"), "reward": _group_choices("reward"), "demos": _group_choices("demos"),
+        "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: config_choices("obs"),
+        "algo": lambda: config_choices("algo"), "reward": lambda: config_choices("reward"),
+        "demos": lambda: config_choices("demos"),
     })
 
 

@@ -86,7 +86,7 @@ def view(cfg) -> None:
 def main():
     from cathsim_dmc.cli._common import fail, run_hydra
     from cathsim_dmc.cli.teleop import has_display
-    from cathsim_dmc.tasks import TARGETS, aorta_choices
+    from cathsim_dmc.registry import TARGETS, aorta_choices
 
     if not has_display():
         fail('no display: cathsim-view opens a window; run it under a virtual one with '
