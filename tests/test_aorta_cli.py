@@ -245,7 +245,8 @@ def test_site_placement_checks_on_the_shipped_centerlines():
 
 def test_build_a_generated_variant(tmp_path):
     out = tmp_path / "my_arch"
-    proc = run("build", "name=my_arch", "arch_type=3", "seed=7", f"out={out}", "validate=false")
+    proc = run("build", "name=my_arch", "arch_type=3", "seed=7", f"out={out}", "validate=false",
+               "edge_length_m=0.005", "sdf_spacing_m=0.002")   # coarse: the arch type is the centerlines'
     print(proc.stdout, proc.stderr)
     assert proc.returncode == 0, proc.stderr
     asset = load_asset(out)
