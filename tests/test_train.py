@@ -22,30 +22,18 @@ def _steps(checkpoint) -> int:
         return json.loads(z.read("data"))["num_timesteps"]
 
 
-def test_train_then_resume_continues_from_the_last_checkpoint(tmp_path):
+def test_a_trained_run_evaluates_under_its_own_physics_and_resumes_from_its_last_checkpoint(tmp_path):
+    # One run for both, as each cathsim-train start costs a torch import and a model compile.
     run = tmp_path / "run"
-    first = _train([*TINY, "trainer.total_timesteps=60", f"hydra.run.dir={run}"], tmp_path)
+    first = _train([*TINY, "trainer.total_timesteps=60", "task.physics=accurate", f"hydra.run.dir={run}"], tmp_path)
     assert first.returncode == 0, first.stderr[-2000:]
     ckpt = run / "checkpoints"
     assert {"step_30.zip", "step_60.zip", "last.zip"} <= {p.name for p in ckpt.iterdir()}
     assert _steps(ckpt / "last.zip") == 60
     assert list((run / "tensorboard").glob("*/events.out.tfevents.*"))
     assert (run / "eval" / "metrics.md").read_text().startswith("| Target | Aorta | Policy |")
-    assert json.loads((run / "policy.json").read_text())["obs"] == "internal"
-
-    # A second invocation continues the same run to a larger budget: the step count
-    # carries on from 60 instead of starting again.
-    again = _train([f"resume={run}", "trainer.total_timesteps=90", f"hydra.run.dir={tmp_path}/resume"], tmp_path)
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert _steps(ckpt / "last.zip") == 90 and (ckpt / "step_90.zip").is_file()
-    assert _steps(run / "final_model.zip") == 90
-
-
-def test_trained_checkpoint_evaluates_with_cathsim_eval_under_its_own_physics(tmp_path):
-    run = tmp_path / "run"
-    trained = _train([*TINY, "trainer.total_timesteps=30", "task.physics=accurate", f"hydra.run.dir={run}"], tmp_path)
-    assert trained.returncode == 0, trained.stderr[-2000:]
-    assert json.loads((run / "policy.json").read_text())["env_options"]["physics"] == "accurate"
+    policy_file = json.loads((run / "policy.json").read_text())
+    assert policy_file["obs"] == "internal" and policy_file["env_options"]["physics"] == "accurate"
 
     def evaluate(name, *extra):
         result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={run}", "episodes=1",
@@ -60,6 +48,13 @@ def test_trained_checkpoint_evaluates_with_cathsim_eval_under_its_own_physics(tm
     assert report["physics"] == "accurate"
     # ...but an explicit one is a transfer test.
     assert evaluate("transfer", "task.physics=fast")["physics"] == "fast"
+
+    # A second invocation continues the same run to a larger budget: the step count
+    # carries on from 60 instead of starting again.
+    again = _train([f"resume={run}", "trainer.total_timesteps=90", f"hydra.run.dir={tmp_path}/resume"], tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert _steps(ckpt / "last.zip") == 90 and (ckpt / "step_90.zip").is_file()
+    assert _steps(run / "final_model.zip") == 90
 
 
 def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
