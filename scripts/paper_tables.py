@@ -627,8 +627,9 @@ def curves_figure(plan: Plan, path: Path) -> str:
     for col, target in enumerate(TARGETS):
         top, bottom = axes[0][col], axes[1][col]
         for obs, label in MODALITIES.items():
-            runs = [_evaluations(plan, f"main/{obs}/{target}/seed{s}") for s in SEEDS]
-            runs = [r for r in runs if r]
+            # Finished seeds only, as in the main table: a running seed's curve stops short.
+            names = [f"main/{obs}/{target}/seed{s}" for s in SEEDS]
+            runs = [r for r in (_evaluations(plan, n) for n in names if _finished(plan, n)) if r]
             if runs:
                 steps = sorted({e["step"] for r in runs for e in r})
                 values = [[e["mean_episode_length"] for r in runs for e in r if e["step"] == s] for s in steps]
@@ -638,10 +639,12 @@ def curves_figure(plan: Plan, path: Path) -> str:
                                  alpha=0.15)
                 drawn += 1
             if obs in PROTOCOL:
-                evals = _evaluations(plan, f"protocol/{obs}/{target}/seed0")
-                if evals:
+                name = f"protocol/{obs}/{target}/seed0"
+                evals = _evaluations(plan, name)
+                if evals:  # a protocol cell runs for hours: its curve so far is drawn, and says so
+                    running = "" if _finished(plan, name) else f", running: {evals[-1]['step']:,} steps so far"
                     bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
-                                color=colours[obs], label=f"{label}, paper's protocol (seed 0)")
+                                color=colours[obs], label=f"{label}, paper's protocol (seed 0{running})")
                     drawn += 1
         human = plan.root / "human" / target / "metrics.json"
         for ax in (top, bottom):

@@ -109,6 +109,11 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     assert not (folder / paper.CELL_FILE).exists() and (folder / paper.LOCK_FILE).exists()
+    # An unfinished seed's curve is not drawn: it would stop short of the finished ones.
+    assert (folder / "evaluations.jsonl").read_text().strip()
+    doc = tmp_path / "paper.md"
+    assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(doc)).returncode == 0
+    assert "0 curves drawn" in doc.read_text()
 
     result = subprocess.run(run, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
@@ -125,7 +130,6 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     assert json.loads((folder / paper.CELL_FILE).read_text()) == info
 
     # The tables: the finished cell fills its row from its final report; the rest say "not run".
-    doc = tmp_path / "paper.md"
     doc.write_text("# Intro kept\n\n<!-- paper_tables:main -->\nold\n<!-- /paper_tables:main -->\n\nOutro kept\n")
     result = _script(repo_root, "--root", str(tmp_path), "report", "--out", str(doc))
     assert result.returncode == 0, result.stderr
@@ -139,6 +143,8 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     assert next(r for r in rows if r.startswith("| ENN | LCCA |")).count("not run") == 6
     assert "1 of 30 cells finished" in text and info["commit"] in text
     assert (tmp_path / "paper_learning_curves.png").stat().st_size > 0
+    assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(tmp_path / "full.md")).returncode == 0
+    assert "1 curves drawn" in (tmp_path / "full.md").read_text()
 
     # The record outlives the run folder: a new machine with the record alone skips the cell
     # and writes the same row.
