@@ -173,7 +173,6 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
         assert left <= HYDRA_FILES, f"{sorted(left)} written before the error"
 
 
-
 @pytest.mark.parametrize("tool, arg", [("eval", "obs=nope"), ("train", "aorta=nope"), ("collect", "policy=nope"),
                                        ("train", "algo.batch_size=0")])
 def test_a_refused_command_line_loads_no_simulator_or_network(tool, arg, tmp_path):
@@ -191,6 +190,7 @@ def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
     from cathsim_dmc.registry import config_choices
 
     assert config_choices("obs") == sorted(OBSERVATION_PRESETS)
+
 
 def _corrupt_manifest_collect(tmp_path):
     from cathsim_dmc.supervised.collect import collect
