@@ -185,6 +185,16 @@ def test_a_refused_command_line_loads_no_simulator_or_network(tool, arg, tmp_pat
     assert result.stdout.split("\n")[:2] == ["2", "[]"], (result.stdout, result.stderr[-2000:])
 
 
+
+@pytest.mark.parametrize("tool, arg, expected", [("eval", "task.max_steps=0", "max_steps=0"),
+                                                 ("train", "task.delta_m=5", "delta_m=5"),
+                                                 ("collect", "task.catheter=cobra", "catheter='cobra'")])
+def test_a_bad_task_value_is_refused_before_hydra_makes_the_run_folder(tool, arg, expected, tmp_path):
+    out = tmp_path / "out"
+    result = _tool(tool, [arg, f"hydra.run.dir={out}"], tmp_path)
+    assert result.returncode == 2 and expected in result.stderr, result.stderr[-2000:]
+    assert not out.exists()
+
 def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
     from cathsim_dmc.observables import OBSERVATION_PRESETS
     from cathsim_dmc.registry import config_choices

@@ -83,9 +83,9 @@ def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
 def check_composes(config_name: str, argv: Sequence[str]) -> None:
     """Compose the tool's config with the command line's overrides, as Hydra is about to,
     and exit with status 2 and one line if that fails: an unknown key, a value of the
-    wrong type or out of range (the schemas of cathsim_dmc.config), a
-    malformed override, a missing config option. Hydra itself would print several lines
-    and exit 1.
+    wrong type or out of range (the schemas of cathsim_dmc.config), a task value the task
+    cannot use (`env_kwargs`), a malformed override, a missing config option. Hydra itself
+    would print several lines and exit 1, after making the run folder.
 
     A sweep (-m) or a Hydra flag (--cfg, --help, ...) is left to Hydra.
     """
@@ -106,6 +106,8 @@ def check_composes(config_name: str, argv: Sequence[str]) -> None:
             validate(cfg, config_name)
         else:
             check_known_keys(cfg, None)
+        if "task" in cfg and "aorta" in cfg:  # the task's own ranges and names (tasks.check_options)
+            env_kwargs(cfg, training=config_name == "train")
     except (HydraException, OmegaConfBaseException) as error:
         fail(composition_error(error))
     except ValueError as error:
