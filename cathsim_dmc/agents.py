@@ -112,6 +112,9 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             from stable_baselines3 import SAC
 
             model = SAC.load(model_path, device="cpu")
+            average = getattr(model, "_actor_average", None)
+            if average is not None:  # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
+                model.actor.load_state_dict(average)
         elif algo == "bc":
             from cathsim_dmc.supervised.bc import load_bc_policy
 

@@ -140,6 +140,9 @@ class TrainerConfig:
     # also evaluate the pre-trained policy before the first step, so that it competes for best.zip
     eval_at_start: bool = False
     final_eval_episodes: Optional[int] = _count(20, minimum=1)  # of the final report (null: eval_episodes)
+    # when several periodic evaluations share the best success rate, more episodes for each
+    # of them (at most 3) decide best.zip (0: the earlier of a tie is kept)
+    tie_break_episodes: int = _count(20)
     # steps between checkpoints; null: with every periodic evaluation (eval_every; 1000 steps
     # without one), so a killed run resumes from its last evaluation; 0: only at the end
     checkpoint_every: Optional[int] = _count(None)

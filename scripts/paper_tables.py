@@ -4,6 +4,7 @@
     python scripts/paper_tables.py run --jobs 2          # run what is not finished (a killed run resumes)
     python scripts/paper_tables.py run --only main/enn   # cells whose name starts with this
     python scripts/paper_tables.py report --out docs/paper.md   # from ROOT and the record
+    python scripts/paper_tables.py reselect              # best.zip chosen again where a tie was never broken
 
 A cell is one tool run (cathsim-train, -collect, -bc or -force) in ROOT/<cell name>. It is
 finished when ROOT/<cell>/cell.json exists (written when the tool exits cleanly, with the
@@ -331,6 +332,46 @@ def run_cell(plan: Plan, cell: Cell) -> bool:
         (folder / LOCK_FILE).unlink(missing_ok=True)
 
 
+def reselect(plan: Plan, only: list | None) -> int:
+    """Choose best.zip again, and score it again, in each finished training cell whose tied
+    periodic evaluations were never broken on more episodes (cells finished before
+    trainer.tie_break_episodes existed). The training is not repeated: `cathsim-train
+    resume=<cell>` of a finished run does only that. cell.json keeps the training's commit
+    and cost, and gains `selected` (commit, wall seconds, date)."""
+    from cathsim_dmc.rl.callbacks import has_unbroken_tie
+
+    failed = 0
+    for cell in plan.cells:
+        folder = plan.folder(cell)
+        if (cell.tool != "train" or (only and not any(cell.name.startswith(o) for o in only))
+                or not (folder / CELL_FILE).is_file() or not has_unbroken_tie(folder)):
+            continue
+        if not _claim(folder):
+            print(f"[{cell.name}] held by another process", flush=True)
+            failed += 1
+            continue
+        try:
+            cmd = [_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
+            with (folder / "attempts.jsonl").open("a") as f:
+                f.write(json.dumps({"started": _now(), "command": cmd, "reselect": True}) + "\n")
+            print(f"[{cell.name}] {' '.join(cmd)}", flush=True)
+            t0 = time.time()
+            with (folder / "tool.log").open("a") as log:
+                result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+            if result.returncode != 0:
+                print(f"[{cell.name}] failed (exit {result.returncode}): see {folder / 'tool.log'}", flush=True)
+                failed += 1
+                continue
+            info = json.loads((folder / CELL_FILE).read_text())
+            info["selected"] = {"commit": _commit(), "seconds": round(time.time() - t0, 1), "finished": _now()}
+            (folder / CELL_FILE).write_text(json.dumps(info, indent=1))
+            save_record(plan, cell.name)
+            print(f"[{cell.name}] best.zip chosen again in {(time.time() - t0) / 60:.1f} min", flush=True)
+        finally:
+            (folder / LOCK_FILE).unlink(missing_ok=True)
+    return 1 if failed else 0
+
+
 def _now() -> str:
     return datetime.datetime.now().isoformat(timespec="seconds")
 
@@ -499,8 +540,15 @@ def _provenance(plan: Plan, names: list, only: str) -> str:
     dates = sorted(i["finished"][:10] for i in infos)
     span = dates[0] if dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}"
     budget = "" if plan.budget == "full" else f", budget {plan.budget}"
+    selected = [i["selected"] for i in infos if "selected" in i]
+    again = ""
+    if selected:
+        at = sorted({s["commit"] for s in selected})
+        again = (f"; best.zip of {len(selected)} chosen again on more episodes at {', '.join(at)} "
+                 f"(`reselect`)")
     return (f"\n{len(infos)} of {len(names)} cells finished, {span}, at commit{'s' if len(commits) > 1 else ''} "
-            f"{', '.join(commits)}{budget}; `python scripts/paper_tables.py run --only {only}`, then `report`.\n")
+            f"{', '.join(commits)}{budget}{again}; `python scripts/paper_tables.py run --only {only}`, then "
+            f"`report`.\n")
 
 
 def main_table(plan: Plan) -> str:
@@ -724,6 +772,8 @@ def main(argv=None) -> int:
     r.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     r.add_argument("--jobs", type=int, default=1, help="cells run at once (2 on a 2-core machine)")
     r.add_argument("--budget", choices=("full", "tiny"), default=None, help="tiny: a few steps per cell (tests)")
+    sel = sub.add_parser("reselect", help="choose best.zip again in finished training cells with an unbroken tie")
+    sel.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     rep = sub.add_parser("report", help="the tables and the figure")
     rep.add_argument("--out", type=Path, default=None, help="markdown file (default ROOT/paper.md)")
     args = parser.parse_args(argv)
@@ -743,6 +793,8 @@ def main(argv=None) -> int:
     if args.command == "plan":
         print_plan(plan)
         return 0
+    if args.command == "reselect":
+        return reselect(plan, args.only)
     if args.command == "run":
         args.root.mkdir(parents=True, exist_ok=True)
         (args.root / "plan.json").write_text(json.dumps({"budget": plan.budget}))

@@ -313,6 +313,58 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     saved = SAC.load(tmp_path / "checkpoints" / "best.zip", device="cpu")
     saved_flat = torch.cat([p.detach().flatten() for p in saved.actor.parameters()])
     torch.testing.assert_close(saved_flat, averaged)
+    # A periodic checkpoint holds the trained actor and the average beside it; cathsim-eval
+    # plays the average, the policy its periodic evaluation scored.
+    from cathsim_dmc.agents import load_checkpoint_policy
+    from cathsim_dmc.rl.checkpoints import save_checkpoint, write_policy_file
+
+    write_policy_file(tmp_path, "internal", "bca", "type1")
+    step_file = save_checkpoint(model, tmp_path / "checkpoints", replay_buffer=False).with_name(
+        f"step_{model.num_timesteps}.zip")
+    raw = SAC.load(step_file, device="cpu")
+    torch.testing.assert_close(torch.cat([p.detach().flatten() for p in raw.actor.parameters()]), trained)
+    played = load_checkpoint_policy(step_file).model
+    torch.testing.assert_close(torch.cat([p.detach().flatten() for p in played.actor.parameters()]), averaged)
+
+
+def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env, tmp_path):
+    import torch
+    from stable_baselines3 import SAC
+
+    from cathsim_dmc.agents import load_checkpoint_policy
+    from cathsim_dmc.rl.callbacks import break_best_tie
+    from cathsim_dmc.rl.checkpoints import (append_evaluation, best_record, keep_if_best, save_model,
+                                            write_policy_file)
+
+    write_policy_file(tmp_path, "internal", "bca", "type1")
+    folder = tmp_path / "checkpoints"
+    first = SAC("MultiInputPolicy", env, buffer_size=100, seed=0, device="cpu", policy_kwargs={"net_arch": [8]})
+    other = SAC("MultiInputPolicy", env, buffer_size=100, seed=1, device="cpu", policy_kwargs={"net_arch": [8]})
+    history = [(0, first, 1.0, 2.0), (1000, first, 1.0, 2.0), (2000, other, 1.0, 1.0), (3000, other, 0.5, 9.0)]
+    for step, model, success, ret in history:  # step 1000: no update yet, the same weights as step 0
+        save_model(model, folder / f"step_{step}.zip")
+        keep_if_best(model, tmp_path, step, success, ret, episodes=10)
+        append_evaluation(tmp_path, {"step": step, "success_rate": success, "mean_return": ret, "wall_s": 0.0})
+    assert best_record(tmp_path)["step"] == 0
+
+    record = break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15),
+                            periodic_episodes=10, extra_episodes=2, seed=20_000)
+    scores = record["tie_break"]["scores"]
+    assert [s["step"] for s in scores] == [0, 2000]  # 1000 played once, as step 0; 3000 not tied
+    assert all(s["episodes"] == 12 for s in scores)
+    assert all(s["success_rate"] <= 1.0 and s["success_rate"] >= 10 / 12 for s in scores)
+    winner = max(scores, key=lambda s: (s["success_rate"], s["mean_return"]))
+    assert best_record(tmp_path)["step"] == winner["step"] == record["step"]
+    kept = load_checkpoint_policy(folder / "best.zip").model
+    source = first if winner["step"] == 0 else other
+    for a, b in zip(kept.actor.parameters(), source.actor.parameters()):
+        torch.testing.assert_close(a, b)
+    # Broken once for these evaluations: a finished run resumed does not play them again.
+    from cathsim_dmc.rl.callbacks import has_unbroken_tie
+
+    assert not has_unbroken_tie(tmp_path)
+    assert break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15), 10, 2,
+                          20_000) is None
 
 
 @pytest.mark.parametrize("overrides, episodes, capacity, takeover_rounds", [

@@ -146,6 +146,28 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(tmp_path / "full.md")).returncode == 0
     assert "1 curves drawn" in (tmp_path / "full.md").read_text()
 
+    # A cell finished while ties kept the earlier checkpoint: `reselect` breaks its tie and
+    # scores it again, keeping the training's commit and cost.
+    lines = (folder / "evaluations.jsonl").read_text().splitlines()
+    tied = [dict(json.loads(line), success_rate=1.0, mean_return=float(i)) for i, line in enumerate(lines)]
+    (folder / "evaluations.jsonl").write_text("".join(json.dumps(e) + "\n" for e in tied))
+    best = json.loads((folder / "checkpoints" / "best.json").read_text())
+    assert "tie_break" not in best
+    demonstrations = (folder / "tool.log").read_text().count("] - demonstrations: ")
+    assert demonstrations >= 1
+    result = _script(repo_root, "--root", str(tmp_path), "reselect")
+    assert result.returncode == 0 and f"[{cell}] best.zip chosen again" in result.stdout, result.stdout
+    reselected = json.loads((folder / paper.CELL_FILE).read_text())
+    assert {k: v for k, v in reselected.items() if k != "selected"} == info
+    assert (folder / "tool.log").read_text().count("] - demonstrations: ") == demonstrations  # none recorded again
+    assert json.loads((folder / "checkpoints" / "best.json").read_text())["tie_break"]["after_step"] == 20
+    assert json.loads((tmp_path / "results.json").read_text())[cell]["info"] == reselected
+    assert cell not in _script(repo_root, "--root", str(tmp_path), "reselect").stdout  # broken once
+    info = reselected
+    assert _script(repo_root, "--root", str(tmp_path), "report", "--out", str(doc)).returncode == 0
+    text = doc.read_text()
+    assert f"chosen again on more episodes at {info['selected']['commit']}" in text
+
     # The record outlives the run folder: a new machine with the record alone skips the cell
     # and writes the same row.
     recorded = json.loads((tmp_path / "results.json").read_text())

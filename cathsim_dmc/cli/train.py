@@ -29,8 +29,8 @@ def run(cfg) -> dict:
     from cathsim_dmc.config_tools import validate
     from cathsim_dmc.evaluation import METRICS_MD, evaluate_policy
     from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.agents import CheckpointPolicy, load_checkpoint_policy
-    from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, best_record
+    from cathsim_dmc.agents import load_checkpoint_policy
+    from cathsim_dmc.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, FINAL_MODEL, best_record
     from cathsim_dmc.rl.train import make_vec_env, train
     from cathsim_dmc.run_files import Interrupted, lock_folder
 
@@ -84,11 +84,8 @@ def run(cfg) -> dict:
         policy = load_checkpoint_policy(run_dir / CHECKPOINT_DIR / BEST_MODEL)
         log.info("evaluating best.zip (step %d: %.0f%% success in the periodic evaluation)", best["step"],
                  100 * best["success_rate"])
-    else:
-        normalizer = result.model.get_vec_normalize_env()
-        if normalizer is not None:
-            normalizer.training = False
-        policy = CheckpointPolicy(result.model, obs, image_options, agent_options, normalizer)
+    else:  # the final model as cathsim-eval loads it (with the averaged actor of sac_tuned)
+        policy = load_checkpoint_policy(run_dir / FINAL_MODEL)
     eval_env = CathSimEnv(**eval_kwargs)
     try:
         report = evaluate_policy(eval_env, policy, f"sac-{obs}",

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 
-from cathsim_dmc.rl.checkpoints import (append_evaluation, best_record, evaluated_wall_seconds, keep_if_best,
-                                        save_checkpoint)
+from cathsim_dmc.rl.checkpoints import (BEST_MODEL, CHECKPOINT_DIR, append_evaluation, best_record, copy_model,
+                                        evaluated_wall_seconds, keep_if_best, read_evaluations, save_checkpoint,
+                                        write_best_record)
 
 
 def deterministic_policy(model):
@@ -243,6 +244,95 @@ class PeriodicEvaluation(EvalCallback):
 
     def _on_training_end(self) -> None:
         self.eval_env.close()
+
+
+def has_unbroken_tie(run_dir: Path) -> bool:
+    """True when several periodic evaluations of the run share the best success rate (above
+    0) and `break_best_tie` has not looked at them yet."""
+    best, evaluations = best_record(run_dir), read_evaluations(run_dir)
+    if best is None or not evaluations:
+        return False
+    top = max(e["success_rate"] for e in evaluations)
+    if top <= 0 or sum(e["success_rate"] == top for e in evaluations) < 2:
+        return False
+    return best.get("tie_break", {}).get("after_step") != evaluations[-1]["step"]
+
+
+TIE_BREAK_CANDIDATES = 3  # the tied checkpoints with the highest return: each costs tie_break_episodes episodes
+
+
+def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_episodes: int, seed: int):
+    """When several periodic evaluations share the best success rate, score the tied
+    checkpoints on `extra_episodes` more selection episodes and keep the best as best.zip.
+
+    Ten episodes cannot tell a policy that succeeds in 86% of starts from one that
+    succeeds in all: both often score 10 of 10. Before this, a tie kept the earlier
+    checkpoint, which with `eval_at_start` is often the pre-trained actor. Here each
+    candidate (at most `TIE_BREAK_CANDIDATES`, those with the highest mean return; models
+    with the same weights once) plays the episodes that follow the periodic evaluation's
+    own (seeds `seed + periodic_episodes` onwards), and is ranked by its success rate and
+    then its return over all its selection episodes; a tie still keeps the earlier. A
+    best success rate of 0 is left to the return, as before. The final report's episodes
+    (10_000 + seed) are never among them.
+
+    :param run_dir: a cathsim-train run folder with evaluations.jsonl and its checkpoints
+    :param make_eval_env: builds a `CathSimEnv` like the periodic evaluation's
+    :param periodic_episodes: episodes of each periodic evaluation (trainer.eval_episodes)
+    :param extra_episodes: more episodes for each candidate (trainer.tie_break_episodes)
+    :param seed: the periodic evaluation's first seed (20_000 + the run's seed)
+    :returns: the new best.json record, or None when there was no tie to break
+    """
+    import hashlib
+
+    from cathsim_dmc.agents import load_checkpoint_policy
+    from cathsim_dmc.evaluation import run_episodes
+
+    run_dir = Path(run_dir)
+    best = best_record(run_dir)
+    if extra_episodes <= 0 or not has_unbroken_tie(run_dir):
+        return None
+    evaluations = read_evaluations(run_dir)
+    top = max(e["success_rate"] for e in evaluations)
+    ckpt_dir = run_dir / CHECKPOINT_DIR
+    files = {}
+    for e in sorted((e for e in evaluations if e["success_rate"] == top), key=lambda e: -e["mean_return"]):
+        path = ckpt_dir / (BEST_MODEL if e["step"] == best["step"] else f"step_{e['step']}.zip")
+        if path.is_file() and e["step"] not in files:
+            files[e["step"]] = (path, e)
+    record = dict(best, tie_break={"episodes": int(extra_episodes), "first_seed": int(seed + periodic_episodes),
+                                   "after_step": int(evaluations[-1]["step"]), "scores": []})
+    candidates, seen = [], set()
+    for step, (path, e) in files.items():
+        policy = load_checkpoint_policy(path)
+        weights = hashlib.sha1(b"".join(v.cpu().numpy().tobytes() for v in policy.model.actor.state_dict().values()))
+        if weights.hexdigest() in seen:  # e.g. the pre-trained actor again, before the first update
+            continue
+        seen.add(weights.hexdigest())
+        candidates.append((step, path, e, policy))
+        if len(candidates) == TIE_BREAK_CANDIDATES:
+            break
+    if len(candidates) < 2:  # the tied models are one and the same (or only one was kept on disk)
+        write_best_record(run_dir, record)
+        return None
+    env = make_eval_env()
+    scores = []
+    try:
+        for step, path, e, policy in candidates:
+            summaries = run_episodes(env, policy, extra_episodes, seed + periodic_episodes, show_progress=False,
+                                     log_episodes=False)
+            n = periodic_episodes + extra_episodes
+            success = (e["success_rate"] * periodic_episodes + sum(float(s["success"]) for s in summaries)) / n
+            mean_return = (e["mean_return"] * periodic_episodes + sum(float(s["return"]) for s in summaries)) / n
+            scores.append({"step": int(step), "success_rate": success, "mean_return": mean_return, "episodes": n})
+    finally:
+        env.close()
+    winner = max(scores, key=lambda c: (c["success_rate"], c["mean_return"], -c["step"]))
+    path = next(p for step, p, _, _ in candidates if step == winner["step"])
+    if path.name != BEST_MODEL:
+        copy_model(path, ckpt_dir / BEST_MODEL)
+    record = dict(winner, tie_break=dict(record["tie_break"], scores=scores))
+    write_best_record(run_dir, record)
+    return record
 
 
 class Progress(BaseCallback):

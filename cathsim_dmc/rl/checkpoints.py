@@ -7,6 +7,7 @@
     <run>/checkpoints/last.zip              the newest of them: writing it commits a checkpoint
     <run>/checkpoints/replay_buffer_step_<n>.pkl   the replay buffer saved with step n (optional)
     <run>/checkpoints/best.zip, best.json   the best periodic evaluation's model and its scores
+                                            (a tie broken on more episodes: callbacks.break_best_tie)
 
 Beside every model, `<name>.vecnormalize.pkl` holds its observation normaliser when it
 has one. Every file is written atomically (`cathsim_dmc.run_files`), so a run killed at
@@ -97,11 +98,7 @@ def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
     step_file = folder / f"step_{step}.zip"
     save_model(model, step_file)
     last = folder / LAST_CHECKPOINT
-    step_normalizer = run_files.normalizer_path(step_file)
-    if step_normalizer.is_file():
-        copy = step_normalizer.read_bytes()
-        run_files.write_atomic(run_files.normalizer_path(last), lambda tmp: tmp.write_bytes(copy))
-    run_files.write_atomic(last, lambda tmp: tmp.write_bytes(step_file.read_bytes()))
+    copy_model(step_file, last)
     for old_step, path in _replay_buffer_steps(folder).items():
         if old_step != step or not replay_buffer:
             path.unlink(missing_ok=True)
@@ -161,14 +158,35 @@ def keep_if_best(model, run_dir: Path, step: int, success_rate: float, mean_retu
     record = {"step": int(step), "success_rate": success_rate, "mean_return": mean_return}
     if episodes is not None:
         record["episodes"] = int(episodes)
-    run_files.write_atomic(record_file, lambda tmp: tmp.write_text(json.dumps(record)))
+    write_best_record(run_dir, record)
     return True
+
+
+def write_best_record(run_dir: Path, record: dict) -> None:
+    """best.json of a run: the scores of best.zip, its step and how many episodes they are over."""
+    run_files.write_atomic(Path(run_dir) / CHECKPOINT_DIR / BEST_RECORD, lambda tmp: tmp.write_text(json.dumps(record)))
+
+
+def copy_model(source: Path, destination: Path) -> None:
+    """A saved model copied (atomic), with its observation normaliser if it has one."""
+    normalizer = run_files.normalizer_path(source)
+    if normalizer.is_file():
+        stats = normalizer.read_bytes()
+        run_files.write_atomic(run_files.normalizer_path(destination), lambda tmp: tmp.write_bytes(stats))
+    content = Path(source).read_bytes()
+    run_files.write_atomic(destination, lambda tmp: tmp.write_bytes(content))
 
 
 def best_record(run_dir: Path) -> dict | None:
     """best.json of a run (None if no periodic evaluation saved a best model)."""
     record_file = Path(run_dir) / CHECKPOINT_DIR / BEST_RECORD
     return json.loads(record_file.read_text()) if record_file.is_file() else None
+
+
+def read_evaluations(run_dir: Path) -> list:
+    """The run's periodic evaluations (evaluations.jsonl), oldest first."""
+    path = Path(run_dir) / EVALUATIONS
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
 
 
 def append_evaluation(run_dir: Path, record: dict) -> None:
@@ -180,7 +198,5 @@ def append_evaluation(run_dir: Path, record: dict) -> None:
 def evaluated_wall_seconds(run_dir: Path | None) -> float:
     """Wall seconds a run had taken at its last periodic evaluation (0 without one): where
     a resumed run's clock continues from."""
-    if run_dir is None or not (Path(run_dir) / EVALUATIONS).is_file():
-        return 0.0
-    lines = (Path(run_dir) / EVALUATIONS).read_text().splitlines()
-    return float(json.loads(lines[-1])["wall_s"]) if lines else 0.0
+    evaluations = read_evaluations(run_dir) if run_dir is not None else []
+    return float(evaluations[-1]["wall_s"]) if evaluations else 0.0

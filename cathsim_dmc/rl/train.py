@@ -193,6 +193,19 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
     if not last.is_file() or checkpoint_step(last) != model.num_timesteps:  # not saved at this step already
         save_checkpoint(model, ckpt_dir, trainer["save_replay_buffer"])
     save_model(model, run_dir / FINAL_MODEL)
+    if trainer["eval_every"] > 0 and make_eval_env is not None:
+        from cathsim_dmc.rl.callbacks import break_best_tie
+
+        try:
+            record = break_best_tie(run_dir, make_eval_env, trainer["eval_episodes"], trainer["tie_break_episodes"],
+                                    20_000 + seed)
+        except KeyboardInterrupt:
+            raise run_files.Interrupted(f"training finished ({run_dir / FINAL_MODEL}); choosing best.zip among tied "
+                                        f"checkpoints stopped; finish it with: cathsim-train resume={run_dir}") from None
+        if record is not None:
+            log.info("best.zip: step %d of the tied %s, %.0f%% success over %d selection episodes",
+                     record["step"], ", ".join(str(c["step"]) for c in record["tie_break"]["scores"]),
+                     100 * record["success_rate"], record["episodes"])
     return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
 
 
@@ -212,10 +225,10 @@ def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, mak
 
     from cathsim_dmc.rl.callbacks import Checkpoints, EpisodeStats, PeriodicEvaluation, Progress
 
-    if _use_demos(demos):
+    total, ckpt_dir = int(trainer["total_timesteps"]), run_dir / CHECKPOINT_DIR
+    if _use_demos(demos) and model.num_timesteps < total:  # a finished run resumed needs none
         load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume,
                             show_progress=trainer["progress_bar"], labels_path=run_dir / CHECKPOINT_DIR / LABELS_FILE)
-    total, ckpt_dir = int(trainer["total_timesteps"]), run_dir / CHECKPOINT_DIR
     t0, remaining = time.perf_counter(), total - model.num_timesteps
     if remaining > 0:
         built_in = [EpisodeStats(),
