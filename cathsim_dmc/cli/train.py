@@ -82,8 +82,8 @@ def run(cfg) -> dict:
     if cfg.trainer.final_policy == "best" and best is not None:
         # Loaded as cathsim-eval loads it: the model, its normaliser and its policy.json.
         policy = load_checkpoint_policy(run_dir / CHECKPOINT_DIR / BEST_MODEL)
-        log.info("evaluating best.zip (step %d: %.0f%% success in the periodic evaluation)", best["step"],
-                 100 * best["success_rate"])
+        log.info("evaluating best.zip (step %d: %.0f%% success over %s selection episodes)", best["step"],
+                 100 * best["success_rate"], best.get("episodes", cfg.trainer.eval_episodes))
     else:  # the final model as cathsim-eval loads it (with the averaged actor of sac_tuned)
         policy = load_checkpoint_policy(run_dir / FINAL_MODEL)
     eval_env = CathSimEnv(**eval_kwargs)
