@@ -725,18 +725,29 @@ def curves_figure(plan: Plan, path: Path) -> str:
             f"{drawn} curves drawn.\n")
 
 
+def _cost_group(name: str) -> tuple:
+    """(row, target) of a cell in the cost table: a cell's seeds share a row, and so do its
+    targets, except in the main table, where the LCCA's demonstrations cost more."""
+    key = re.sub(r"/seed\d+$", "", name)
+    match = None if key.startswith("main/") else re.fullmatch(r"(.*[_/])(bca|lcca)", key)
+    return (match.group(1), match.group(2)) if match else (key, "")
+
+
 def cost_table(plan: Plan) -> str:
     groups: dict = {}
     for cell in plan.cells:
-        key = re.sub(r"/seed\d+$", "", cell.name)
+        key, target = _cost_group(cell.name)
         info = _cell_info(plan, cell.name)
-        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0, "finished": 0})
+        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0, "finished": 0,
+                                    "targets": []})
         g["cells"] += 1
+        if target and target not in g["targets"]:
+            g["targets"].append(target)
         if info:
             g["finished"] += 1
             if info.get("attempts", 1) == 1:  # a resumed cell's killed attempts were not timed
                 g["measured"].append(info["seconds"] / 60)
-    rows = [[k, g["cells"], g["finished"], f"{g['estimated']:.0f}",
+    rows = [[k + ", ".join(g["targets"]), g["cells"], g["finished"], f"{g['estimated']:.0f}",
              f"{statistics.median(g['measured']):.1f} ({len(g['measured'])})" if g["measured"] else "-"]
             for k, g in groups.items()]
     return _table(["Cell", "Cells", "Finished", "Estimated min per cell",
