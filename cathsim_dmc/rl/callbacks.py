@@ -320,9 +320,10 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
         for step, path, e, policy in candidates:
             summaries = run_episodes(env, policy, extra_episodes, seed + periodic_episodes, show_progress=False,
                                      log_episodes=False)
-            n = periodic_episodes + extra_episodes
-            success = (e["success_rate"] * periodic_episodes + sum(float(s["success"]) for s in summaries)) / n
-            mean_return = (e["mean_return"] * periodic_episodes + sum(float(s["return"]) for s in summaries)) / n
+            played = int(e.get("episodes", periodic_episodes))  # the periodic evaluation's own count
+            n = played + extra_episodes
+            success = (e["success_rate"] * played + sum(float(s["success"]) for s in summaries)) / n
+            mean_return = (e["mean_return"] * played + sum(float(s["return"]) for s in summaries)) / n
             scores.append({"step": int(step), "success_rate": success, "mean_return": mean_return, "episodes": n})
     finally:
         env.close()
