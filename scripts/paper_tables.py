@@ -95,6 +95,7 @@ TINY = {  # --budget tiny: every cell on a few steps and short episodes
     "force": ["force.sizes=[20,40]", "force.epochs=1", "force.min_updates=2"],
 }
 CELL_FILE = "cell.json"
+ATTEMPTS_FILE = "attempts.jsonl"
 LOCK_FILE = "running"
 FULL_RECORD = ROOT / "experiments" / "paper_results.json"
 _RECORD_LOCK = threading.Lock()
@@ -302,6 +303,22 @@ def _claim(folder: Path) -> bool:
     return False
 
 
+def _run_tool(name: str, folder: Path, cmd: list, **attempt) -> tuple:
+    """Run one tool command for a cell, its output appended to tool.log and the attempt to
+    attempts.jsonl; (exit status, the commit it started at, wall seconds)."""
+    with (folder / ATTEMPTS_FILE).open("a") as f:
+        f.write(json.dumps({"started": _now(), "command": cmd, **attempt}) + "\n")
+    print(f"[{name}] {' '.join(cmd)}", flush=True)
+    commit, t0 = _commit(), time.time()  # the code the tool starts with (a checkout may move on meanwhile)
+    with (folder / "tool.log").open("a") as log:
+        result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+    seconds = time.time() - t0
+    if result.returncode != 0:
+        print(f"[{name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}",
+              flush=True)
+    return result.returncode, commit, seconds
+
+
 def run_cell(plan: Plan, cell: Cell) -> bool:
     """Run one cell to its end; True when it finished."""
     folder = plan.folder(cell)
@@ -312,20 +329,11 @@ def run_cell(plan: Plan, cell: Cell) -> bool:
             for item in folder.iterdir():
                 if item.name != LOCK_FILE:
                     shutil.rmtree(item) if item.is_dir() else item.unlink()
-        attempts = folder / "attempts.jsonl"
         cmd = command(plan, cell)
-        with attempts.open("a") as f:
-            f.write(json.dumps({"started": _now(), "command": cmd}) + "\n")
-        print(f"[{cell.name}] {' '.join(cmd)}", flush=True)
-        commit, t0 = _commit(), time.time()  # the code the tool starts with (a checkout may move on meanwhile)
-        with (folder / "tool.log").open("a") as log:
-            result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-        seconds = time.time() - t0
-        if result.returncode != 0:
-            print(f"[{cell.name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}",
-                  flush=True)
+        returncode, commit, seconds = _run_tool(cell.name, folder, cmd)
+        if returncode != 0:
             return False
-        count = len(attempts.read_text().splitlines())
+        count = len((folder / ATTEMPTS_FILE).read_text().splitlines())
         (folder / CELL_FILE).write_text(json.dumps(
             {"cell": cell.name, "tool": cell.tool, "command": " ".join([Path(cmd[0]).name, *cmd[1:]]),
              "commit": commit,
@@ -357,21 +365,15 @@ def reselect(plan: Plan, only: list | None) -> int:
             continue
         try:
             cmd = [_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
-            with (folder / "attempts.jsonl").open("a") as f:
-                f.write(json.dumps({"started": _now(), "command": cmd, "reselect": True}) + "\n")
-            print(f"[{cell.name}] {' '.join(cmd)}", flush=True)
-            commit, t0 = _commit(), time.time()
-            with (folder / "tool.log").open("a") as log:
-                result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-            if result.returncode != 0:
-                print(f"[{cell.name}] failed (exit {result.returncode}): see {folder / 'tool.log'}", flush=True)
+            returncode, commit, seconds = _run_tool(cell.name, folder, cmd, reselect=True)
+            if returncode != 0:
                 failed += 1
                 continue
             info = json.loads((folder / CELL_FILE).read_text())
-            info["selected"] = {"commit": commit, "seconds": round(time.time() - t0, 1), "finished": _now()}
+            info["selected"] = {"commit": commit, "seconds": round(seconds, 1), "finished": _now()}
             (folder / CELL_FILE).write_text(json.dumps(info, indent=1))
             save_record(plan, cell.name)
-            print(f"[{cell.name}] best.zip chosen again in {(time.time() - t0) / 60:.1f} min", flush=True)
+            print(f"[{cell.name}] best.zip chosen again in {seconds / 60:.1f} min", flush=True)
         finally:
             (folder / LOCK_FILE).unlink(missing_ok=True)
     return 1 if failed else 0
@@ -456,15 +458,11 @@ def open_plan(root: Path, budget: str | None, record: Path | None = None) -> Pla
 
 
 # -- the record ----------------------------------------------------------------------------
-def _read_evaluations(folder: Path) -> list:
-    path = folder / "evaluations.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
-
-
 def _result_from(folder: Path) -> dict:
     """A finished cell's numbers, as the record keeps them: the cell's info, its final report's
     summary and per-episode metrics, its evaluation curve, and the force report."""
     from cathsim_dmc.metrics import METRIC_COLUMNS
+    from cathsim_dmc.rl.checkpoints import read_evaluations
 
     result = {"info": json.loads((folder / CELL_FILE).read_text())}
     for path in (folder / "eval" / "metrics.json", folder / "metrics.json"):
@@ -473,7 +471,7 @@ def _result_from(folder: Path) -> dict:
             result["summary"] = report["summary"]
             result["per_episode"] = [{k: e[k] for k in METRIC_COLUMNS} for e in report["per_episode"]]
             break
-    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length")} for e in _read_evaluations(folder)]
+    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length")} for e in read_evaluations(folder)]
     if curve:
         result["evaluations"] = curve
     if (folder / "force.json").is_file():
@@ -579,7 +577,9 @@ def main_table(plan: Plan) -> str:
 
 def _evaluations(plan: Plan, name: str) -> list:
     """A cell's evaluation curve: live from ROOT (a running cell's too), else from the record."""
-    live = _read_evaluations(plan.root / name)
+    from cathsim_dmc.rl.checkpoints import read_evaluations
+
+    live = read_evaluations(plan.root / name)
     return live or (plan.recorded().get(name) or {}).get("evaluations", [])
 
 
