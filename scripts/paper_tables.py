@@ -3,6 +3,7 @@
     python scripts/paper_tables.py plan                  # every cell: state, estimated and measured cost
     python scripts/paper_tables.py run --jobs 2          # run what is not finished (a killed run resumes)
     python scripts/paper_tables.py run --only main/enn   # cells whose name starts with this
+    python scripts/paper_tables.py run --deadline 17:30  # start only cells estimated to end by then
     python scripts/paper_tables.py report --out docs/paper.md   # from ROOT and the record
     python scripts/paper_tables.py reselect              # best.zip chosen again where a tie was never broken
 
@@ -11,7 +12,10 @@ finished when ROOT/<cell>/cell.json exists (written when the tool exits cleanly,
 commit, the command and the wall time) or when the record holds it, and finished cells are
 skipped. The record (--record; for the full budget experiments/paper_results.json, in the
 repository, so the results outlive the machine that ran them) keeps each finished cell's
-numbers: its final report's metrics, its evaluation curve and its cost. `report` reads a
+numbers: its final report's metrics, its evaluation curve and its cost. Its files do not
+outlive the machine: when a cell reads a finished cell's files (a dataset, the ENN agent's
+checkpoints) and they are not in ROOT, that cell is run again first, and its record entry is
+replaced by the new measurement. `report` reads a
 cell from ROOT when it is there and from the record otherwise; `--record new.json` starts
 the experiments afresh. A training cell cut short resumes from its last checkpoint; a
 collection continues its dataset; a cloning or force cell starts again. Two `run`
@@ -113,6 +117,12 @@ class Cell:
     minutes: float                   # estimated wall time on the 2-core machine beside one other job
     needs: tuple = ()                # names of cells to finish first
     demos: bool = True               # a training cell that records demonstrations
+    # The needs whose files it reads, given the plan (default: all of them). A need that
+    # finished on another machine (only the record holds it) is run again here first.
+    reads: Callable[["Plan"], tuple] | None = None
+
+    def inputs(self, plan: "Plan") -> tuple:
+        return self.needs if self.reads is None else self.reads(plan)
 
 
 @dataclass
@@ -138,7 +148,11 @@ class Plan:
         return self._cache[1]
 
     def done(self, cell: Cell) -> bool:
-        return (self.folder(cell) / CELL_FILE).is_file() or cell.name in self.recorded()
+        return self.here(cell.name) or cell.name in self.recorded()
+
+    def here(self, name: str) -> bool:
+        """Finished on this machine: its files (checkpoints, datasets) are in ROOT."""
+        return (self.root / name / CELL_FILE).is_file()
 
     def result(self, name: str) -> dict | None:
         """A finished cell's numbers: from ROOT when it is there, else from the record."""
@@ -183,9 +197,12 @@ def protocol_cell(obs: str, target: str) -> Cell:
 
 
 def best_enn_run(plan: Plan, target: str) -> Path:
-    """The ENN seed whose final report scored best (success, then SPL; the lowest seed on a tie)."""
+    """The ENN seed whose final report scored best (success, then SPL; the lowest seed on a
+    tie), among the seeds finished on this machine when there are any: on a new machine the
+    record's best is trained again, and its checkpoints are used whatever it scores then."""
+    names = {seed: f"main/enn/{target}/seed{seed}" for seed in SEEDS}
     scored = []
-    for seed in SEEDS:
+    for seed in [s for s in SEEDS if plan.here(names[s])] or SEEDS:
         summary = plan.result(f"main/enn/{target}/seed{seed}")["summary"]
         scored.append((-summary["success_pct"]["mean"], -summary["spl_pct"]["mean"], seed))
     return plan.root / f"main/enn/{target}/seed{min(scored)[2]}"
@@ -214,7 +231,8 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
         add(Cell(f"imitation/data/enn_{target}", "collect",
                  lambda root, t=target: [f"task={t}", "aorta=type1", f"policy={best_enn_run(plan, t)}",
                                          f"episodes={EXPERT_EPISODES}", "seed=0", "progress_bar=false"],
-                 minutes=15, needs=enn_seeds))
+                 minutes=15, needs=enn_seeds,
+                 reads=lambda plan, t=target: (str(best_enn_run(plan, t).relative_to(plan.root)),)))
         add(Cell(f"imitation/bc/enn_{target}", "bc",
                  _fixed(f"task={target}", "aorta=type1", f"data={data(f'enn_{target}')}", f"bc.epochs={BC_EPOCHS}",
                         f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
@@ -383,25 +401,45 @@ def _now() -> str:
     return datetime.datetime.now().isoformat(timespec="seconds")
 
 
-def run(plan: Plan, only: list | None, jobs: int) -> int:
-    """Run every unfinished cell (matching `only`) whose needs are met, `jobs` at a time."""
+def next_cell(plan: Plan, chosen: list, taken: set, minutes_left: float = float("inf")) -> Cell | None:
+    """The first unfinished cell of `chosen` whose needs are met, not in `taken`; or a need it
+    reads that finished on another machine, to be run again here first. A cell estimated to
+    take longer than `minutes_left` is not started (it is added to `taken`, and printed)."""
+    for cell in chosen:
+        if cell.name in taken or plan.done(cell):
+            continue
+        if not all(plan.done(plan.by_name(n)) for n in cell.needs):
+            continue
+        missing = [n for n in cell.inputs(plan) if not plan.here(n) and n not in taken]
+        pick = plan.by_name(missing[0]) if missing else cell
+        if not missing and any(not plan.here(n) for n in cell.inputs(plan)):
+            continue  # its input is being made again by another worker
+        taken.add(pick.name)
+        if pick.minutes > minutes_left:
+            print(f"[{pick.name}] not started: estimated {pick.minutes:.0f} min, {minutes_left:.0f} min "
+                  "left before the deadline", flush=True)
+            continue
+        if missing:
+            print(f"[{pick.name}] run again on this machine: {cell.name} reads its files", flush=True)
+        return pick
+    return None
+
+
+def run(plan: Plan, only: list | None, jobs: int, deadline: datetime.datetime | None = None) -> int:
+    """Run every unfinished cell (matching `only`) whose needs are met, `jobs` at a time; with
+    a deadline, only cells whose estimate ends before it."""
     chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
     lock = threading.Lock()
     taken: set = set()
     failed: set = set()
 
-    def next_cell():
-        with lock:
-            for cell in chosen:
-                if cell.name in taken or plan.done(cell):
-                    continue
-                if all(plan.done(plan.by_name(n)) for n in cell.needs):
-                    taken.add(cell.name)
-                    return cell
-            return None
-
     def worker():
-        while (cell := next_cell()) is not None:
+        while True:
+            with lock:
+                left = (deadline - datetime.datetime.now()).total_seconds() / 60 if deadline else float("inf")
+                cell = next_cell(plan, chosen, taken, left)
+            if cell is None:
+                return
             if not run_cell(plan, cell):
                 failed.add(cell.name)
 
@@ -412,7 +450,10 @@ def run(plan: Plan, only: list | None, jobs: int) -> int:
         t.join()
     waiting = [c.name for c in chosen if not plan.done(c) and c.name not in taken]
     for name in waiting:
-        print(f"[{name}] waiting for {', '.join(n for n in plan.by_name(name).needs if not plan.done(plan.by_name(n)))}")
+        cell = plan.by_name(name)
+        needed = [n for n in cell.needs if not plan.done(plan.by_name(n))]
+        needed += [f"{n} (on this machine)" for n in (() if needed else cell.inputs(plan)) if not plan.here(n)]
+        print(f"[{name}] waiting for {', '.join(needed)}")
     for name in sorted(failed):
         print(f"[{name}] not finished (failed, or run by another process)")
     return 1 if failed else 0
@@ -421,7 +462,7 @@ def run(plan: Plan, only: list | None, jobs: int) -> int:
 def state(plan: Plan, cell: Cell) -> str:
     folder = plan.folder(cell)
     if plan.done(cell):
-        return "done"
+        return "done" if plan.here(cell.name) else "recorded"  # recorded: its files are on another machine
     if (folder / LOCK_FILE).is_file():
         return "running"
     if folder.is_dir() and any(folder.iterdir()):
@@ -776,6 +817,17 @@ def report(plan: Plan, out: Path) -> str:
     return text
 
 
+def parse_deadline(text: str, now: datetime.datetime | None = None) -> datetime.datetime:
+    """HH:MM as its next occurrence after `now` (today, or tomorrow when it has passed)."""
+    now = now or datetime.datetime.now()
+    try:
+        moment = datetime.datetime.strptime(text, "%H:%M").time()
+    except ValueError:
+        raise UsageError(f"--deadline {text}: give a local time as HH:MM, 00:00 to 23:59") from None
+    deadline = datetime.datetime.combine(now.date(), moment)
+    return deadline if deadline > now else deadline + datetime.timedelta(days=1)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("outputs/paper"))
@@ -788,6 +840,8 @@ def main(argv=None) -> int:
     r.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     r.add_argument("--jobs", type=int, default=1, help="cells run at once (2 on a 2-core machine)")
     r.add_argument("--budget", choices=("full", "tiny"), default=None, help="tiny: a few steps per cell (tests)")
+    r.add_argument("--deadline", default=None, metavar="HH:MM",
+                   help="start only cells whose estimated time ends before this local time (its next occurrence)")
     sel = sub.add_parser("reselect", help="choose best.zip again in finished training cells with an unbroken tie")
     sel.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     rep = sub.add_parser("report", help="the tables and the figure")
@@ -803,6 +857,7 @@ def main(argv=None) -> int:
                                      f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0")
             if args.jobs < 1:
                 raise UsageError(f"--jobs {args.jobs}: give 1 or more")
+            deadline = parse_deadline(args.deadline) if args.deadline else None
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -814,7 +869,7 @@ def main(argv=None) -> int:
     if args.command == "run":
         args.root.mkdir(parents=True, exist_ok=True)
         (args.root / "plan.json").write_text(json.dumps({"budget": plan.budget}))
-        return run(plan, args.only, args.jobs)
+        return run(plan, args.only, args.jobs, deadline)
     out = args.out or args.root / "paper.md"
     report(plan, out)
     print(f"wrote {out}")

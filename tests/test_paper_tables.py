@@ -65,6 +65,53 @@ def test_cells_wait_for_what_they_need(paper, tmp_path):
                                          for t in paper.TARGETS)
 
 
+def _record(path, cells):
+    """A record as another machine left it: the cells' numbers, none of their files."""
+    path.write_text(json.dumps({name: {"info": {"cell": name, "seconds": 60.0}, **extra}
+                                for name, extra in cells.items()}))
+
+
+def test_a_cell_whose_input_finished_on_another_machine_runs_that_input_again_first(paper, tmp_path, capsys):
+    plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
+    summary = lambda success, spl: {"summary": {"success_pct": {"mean": success}, "spl_pct": {"mean": spl}}}  # noqa: E731
+    _record(plan.record, {"imitation/data/expert_bca": {},
+                          "main/enn/bca/seed0": summary(98, 90), "main/enn/bca/seed1": summary(100, 80),
+                          "main/enn/bca/seed2": summary(100, 70)})
+    student, data = plan.by_name("imitation/bc/expert_bca"), plan.by_name("imitation/data/expert_bca")
+    assert paper.state(plan, data) == "recorded" and plan.done(data)
+    taken = set()
+    assert paper.next_cell(plan, [student], taken) is data  # the dataset is made again here first
+    assert "run again on this machine" in capsys.readouterr().out
+    assert paper.next_cell(plan, [student], taken) is None  # while another worker makes it
+    (tmp_path / data.name).mkdir(parents=True)
+    (tmp_path / data.name / paper.CELL_FILE).write_text("{}")
+    assert paper.next_cell(plan, [student], taken) is student and paper.state(plan, data) == "done"
+
+    # The ENN agent's dataset: the record's best seed (success, then SPL) is trained again;
+    # once a seed's checkpoints are here, its run is the one used.
+    enn_data = plan.by_name("imitation/data/enn_bca")
+    assert paper.next_cell(plan, [enn_data], set()).name == "main/enn/bca/seed1"
+    seed2 = tmp_path / "main/enn/bca/seed2"
+    (seed2 / "eval").mkdir(parents=True)
+    (seed2 / "eval" / "metrics.json").write_text(json.dumps({**summary(90, 60), "per_episode": []}))
+    (seed2 / paper.CELL_FILE).write_text("{}")
+    assert paper.best_enn_run(plan, "bca") == tmp_path / "main/enn/bca/seed2"
+    assert paper.next_cell(plan, [enn_data], set()) is enn_data
+
+    # A deadline: a cell estimated to end after it is not started.
+    taken = set()
+    assert paper.next_cell(plan, [enn_data], taken, minutes_left=enn_data.minutes - 1) is None
+    assert taken == {enn_data.name} and "not started: estimated" in capsys.readouterr().out
+
+
+def test_a_deadline_is_its_next_occurrence(paper):
+    import datetime
+
+    now = datetime.datetime(2026, 11, 28, 14, 0)
+    assert paper.parse_deadline("14:30", now) == datetime.datetime(2026, 11, 28, 14, 30)
+    assert paper.parse_deadline("13:30", now) == datetime.datetime(2026, 11, 29, 13, 30)
+
+
 def test_a_held_lock_keeps_a_second_runner_out_and_a_dead_one_is_taken_over(paper, tmp_path):
     folder = tmp_path / "cell"
     assert paper._claim(folder)
@@ -82,7 +129,8 @@ def test_bad_input_is_one_line_and_exit_2(repo_root, tmp_path):
     (root / "plan.json").write_text(json.dumps({"budget": "tiny"}))
     for args, expected in ((["run", "--budget", "full"], "--budget tiny"),
                            (["run", "--only", "mian/enn"], "mian/enn"),
-                           (["run", "--jobs", "0"], "--jobs 0")):
+                           (["run", "--jobs", "0"], "--jobs 0"),
+                           (["run", "--deadline", "25:00"], "--deadline 25:00")):
         result = _script(repo_root, "--root", str(root), *args)
         assert result.returncode == 2, result.stderr
         lines = result.stderr.strip().splitlines()
