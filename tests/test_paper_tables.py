@@ -102,6 +102,13 @@ def test_a_cell_whose_input_finished_on_another_machine_runs_that_input_again_fi
     taken = set()
     assert paper.next_cell(plan, [enn_data], taken, minutes_left=enn_data.minutes - 1) is None
     assert taken == {enn_data.name} and "not started: estimated" in capsys.readouterr().out
+    # A killed training cell needs only the share of its estimate it has not done yet.
+    cell = plan.by_name("main/pixels_mask/bca/seed0")
+    (tmp_path / cell.name / "checkpoints").mkdir(parents=True)
+    (tmp_path / cell.name / "checkpoints" / "last.zip").write_bytes(b"")
+    (tmp_path / cell.name / "evaluations.jsonl").write_text(json.dumps({"step": paper.MAIN_STEPS["pixels_mask"] // 2}))
+    assert paper.minutes_to_finish(plan, cell) == pytest.approx(cell.minutes / 2)
+    assert paper.next_cell(plan, [cell], set(), minutes_left=cell.minutes / 2 + 1) is cell
 
 
 def test_a_deadline_is_its_next_occurrence(paper):
