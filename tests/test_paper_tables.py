@@ -51,6 +51,13 @@ def test_every_training_cell_composes_into_its_recipe(paper, tmp_path):
                 assert cfg.algo.name == {"internal": "sac", "pixels": "sac_cpu"}[obs]
                 assert cfg.trainer.total_timesteps == paper.PROTOCOL_STEPS
                 assert cfg.trainer.save_replay_buffer  # a resumed 100k-step run keeps its transitions
+    # The other tools' cells compose too (the ENN agent's dataset needs a trained ENN first).
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        for cell in plan.cells:
+            if cell.tool != "train" and not cell.name.startswith("imitation/data/enn_"):
+                cfg = compose(cell.tool, overrides=_overrides(paper.command(plan, cell)))
+                if cell.tool == "bc":
+                    assert cfg.bc.frames == (3 if "masks3" in cell.name else 1)
 
 
 def test_cells_wait_for_what_they_need(paper, tmp_path):
