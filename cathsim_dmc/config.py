@@ -60,6 +60,11 @@ class TaskConfig:
     max_steps: int = 300               # the paper's episode limit
     physics: str = "fast"              # fast (PGS, prism wall) | fast_field | accurate (Newton); docs/model.md#physics
     catheter: Optional[str] = None     # a shaped catheter over the wire (angled_5f); docs/model.md#catheter
+    # The start pose: the robot's rotation drawn from start_rotation_rad +- start_rotation_jitter_rad
+    # (pi: the tip's bend in the view's plane), its insertion from [0, start_insertion_jitter_m].
+    start_rotation_rad: float = 3.141592653589793
+    start_rotation_jitter_rad: float = 0.3
+    start_insertion_jitter_m: float = 0.002
 
 
 # Arguments of tasks.load / Navigate that were removed (their measurements showed no gain):

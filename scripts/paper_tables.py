@@ -79,6 +79,8 @@ PROTOCOL_MINUTES = {"internal": 100, "pixels": 270}
 EXPERT_EPISODES = 300     # the students' datasets (per target)
 MORE_EXPERT_EPISODES = 700  # more expert episodes: 1,000 per target for the 100K force subset
 BC_EPOCHS = 20
+# Starts drawn from pi to pi + 0.3 rad rather than pi +- 0.3 (task.start_rotation_*).
+ONE_SIDED_START = ("task.start_rotation_rad=3.2916", "task.start_rotation_jitter_rad=0.15")
 
 # The paper's numbers (Type-I phantom): success % / SPL %.
 PAPER_MAIN = {("pixels", "bca"): (65, 74), ("pixels", "lcca"): (33, 69),
@@ -227,6 +229,18 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                  _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_{target}')}", f"bc.epochs={BC_EPOCHS}",
                         f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
                  minutes=35, needs=(f"imitation/data/expert_{target}",)))
+    # The same students with every start on one side of the view's mirror plane (rotation pi to
+    # pi + 0.3 rad, the default's spread): do mirrored starts, whose images are identical, make
+    # the single frame fall short (docs/paper.md#imitation)?
+    for target in TARGETS:
+        add(Cell(f"imitation/data/expert_onesided_{target}", "collect",
+                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
+                        *ONE_SIDED_START, "progress_bar=false"), minutes=10))
+        add(Cell(f"imitation/bc/expert_onesided_{target}", "bc",
+                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_onesided_{target}')}",
+                        *ONE_SIDED_START, f"bc.epochs={BC_EPOCHS}", f"eval_episodes={FINAL_EPISODES}", "seed=0",
+                        "video=false", "progress_bar=false"),
+                 minutes=35, needs=(f"imitation/data/expert_onesided_{target}",)))
     # The ENN agent's dataset as soon as its seeds finish: it needs their checkpoints, which
     # only the machine that trained them has.
     for target in TARGETS:
@@ -690,7 +704,9 @@ def imitation_table(plan: Plan) -> str:
                    ("Image w/o expert (the paper's protocol)", f"protocol/pixels/{target}/seed0",
                     PAPER_MAIN[("pixels", target)]),
                    ("Image w. ENN agent", f"imitation/bc/enn_{target}", PAPER_BC[target]),
-                   ("Image w. scripted expert", f"imitation/bc/expert_{target}", None)]
+                   ("Image w. scripted expert", f"imitation/bc/expert_{target}", None),
+                   ("Image w. scripted expert, starts on one side (π to π+0.3 rad)",
+                    f"imitation/bc/expert_onesided_{target}", None)]
         if target == "lcca":
             sources.append(("Image w. scripted expert, 1,000 episodes", "imitation/bc/expert1000_lcca", None))
             sources.append(("Last 3 wire masks w. scripted expert, 1,000 episodes",

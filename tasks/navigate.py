@@ -30,6 +30,9 @@ SUCCESS_RADIUS_M = TaskConfig.delta_m  # the paper's delta
 # few centimetres apart: a sphere wider than 5 cm around a target reaches into the arch
 # and the neighbouring branch, and 18 cm counts the start itself as a success.
 MAX_SUCCESS_RADIUS_M = 0.05
+# The largest start insertion jitter: the shipped routes run 20-24 cm along the centerline to
+# targets 17.5-18.5 cm above the start, so a start up to 5 cm deeper is still far below the arch.
+MAX_START_INSERTION_JITTER_M = 0.05
 
 
 def check_removed_arguments(arguments) -> None:
@@ -41,7 +44,8 @@ def check_removed_arguments(arguments) -> None:
 
 
 def check_options(delta_m=None, max_steps=None, success_reward=None, progress_weight=None, physics=None,
-                  catheter=None, **others) -> None:
+                  catheter=None, start_rotation_rad=None, start_rotation_jitter_rad=None,
+                  start_insertion_jitter_m=None, **others) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
@@ -63,6 +67,16 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, progress_we
         cs_physics.physics_settings(physics)
     if catheter is not None:  # a name in CATHETERS ("angled_5f") or a Catheter
         catheter_named(catheter)
+    if start_rotation_rad is not None:
+        check_number("start_rotation_rad", start_rotation_rad)
+    if start_rotation_jitter_rad is not None and check_number(
+            "start_rotation_jitter_rad", start_rotation_jitter_rad, 0.0) > np.pi:
+        raise ValueError(f"start_rotation_jitter_rad={start_rotation_jitter_rad!r} rad is more than a half turn; "
+                         f"choose one in [0, pi]")
+    if start_insertion_jitter_m is not None and check_number(
+            "start_insertion_jitter_m", start_insertion_jitter_m, 0.0) > MAX_START_INSERTION_JITTER_M:
+        raise ValueError(f"start_insertion_jitter_m={start_insertion_jitter_m!r} m would start the tip beyond the "
+                         f"access; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m")
 
 
 @dataclass(frozen=True)
@@ -70,9 +84,9 @@ class StartPose:
     """The robot's pose at the start of an episode: insertion drawn from [0,
     `insertion_jitter_m`] metres, rotation `rotation_rad` +- `rotation_jitter_rad`."""
 
-    insertion_jitter_m: float = 0.002
-    rotation_rad: float = np.pi
-    rotation_jitter_rad: float = 0.3
+    insertion_jitter_m: float = TaskConfig.start_insertion_jitter_m
+    rotation_rad: float = TaskConfig.start_rotation_rad
+    rotation_jitter_rad: float = TaskConfig.start_rotation_jitter_rad
 
     def draw(self, random_state) -> tuple[float, float]:
         """(insertion in metres, rotation in radians) for one episode."""
@@ -147,7 +161,9 @@ class Navigate(composer.Task):
         if target not in aorta.targets:
             raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
         check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
-                      progress_weight=progress_weight, physics=physics, catheter=catheter)
+                      progress_weight=progress_weight, physics=physics, catheter=catheter,
+                      start_rotation_rad=start_rotation_rad, start_rotation_jitter_rad=start_rotation_jitter_rad,
+                      start_insertion_jitter_m=start_insertion_jitter_m)
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._target_name = target
         self._physics_setting = physics

@@ -54,6 +54,8 @@ CLI_CASES = [
     ("eval", ["task.physics=quick"], "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']",
      True),
     ("eval", ["task.catheter=cobra"], "catheter='cobra' is not a catheter; choose one of ['angled_5f']", True),
+    ("eval", ["task.start_rotation_jitter_rad=4"], "start_rotation_jitter_rad=4.0 rad is more than a half turn", True),
+    ("collect", ["task.start_insertion_jitter_m=-0.001"], "start_insertion_jitter_m=-0.001 must be", True),
     ("eval", ["policy={run}", "obs=enn"], "obs='internal'", True),
     # cathsim-train
     ("train", ["obs=xyz"], "enn", True),

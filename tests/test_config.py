@@ -151,6 +151,30 @@ def test_the_task_defaults_are_the_python_apis():
     assert {name: schema[name] for name in shared} == {name: api[name] for name in shared}
 
 
+def test_the_start_pose_on_the_command_line_reaches_the_task():
+    # task.start_*: the robot's rotation is drawn from start_rotation_rad +- start_rotation_jitter_rad.
+    from hydra import compose, initialize_config_dir
+
+    from cathsim_dmc import tasks
+    from cathsim_dmc.cli._common import env_kwargs
+
+    def start_rotations(overrides, episodes=4):
+        with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
+            cfg = compose("collect", overrides=["task=lcca", "obs=internal", *overrides])
+        env = tasks.load(**env_kwargs(cfg), seed=0)
+        rotations = []
+        for _ in range(episodes):
+            env.reset()
+            rotations.append(float(env.physics.bind(env.task.robot.joints).qpos[1]))
+        return rotations
+
+    one_sided = start_rotations(["task.start_rotation_rad=3.29", "task.start_rotation_jitter_rad=0.15"])
+    assert all(3.14 <= r <= 3.44 for r in one_sided) and len(set(one_sided)) == len(one_sided)
+    assert start_rotations(["task.start_rotation_rad=3.3", "task.start_rotation_jitter_rad=0"]) == [3.3] * 4
+    default = start_rotations([])
+    assert all(abs(r - 3.141592653589793) <= 0.3 for r in default) and len(set(default)) == len(default)
+
+
 def test_every_ranged_option_has_a_default_inside_its_range():
     for name, schema in config.TRAIN_SECTIONS.items():
         config.check_section(name, schema, _schema_defaults(schema))

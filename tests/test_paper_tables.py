@@ -58,6 +58,8 @@ def test_every_training_cell_composes_into_its_recipe(paper, tmp_path):
                 cfg = compose(cell.tool, overrides=_overrides(paper.command(plan, cell)))
                 if cell.tool == "bc":
                     assert cfg.bc.frames == (3 if "masks3" in cell.name else 1)
+                if "onesided" in cell.name:  # every start on one side of pi
+                    assert cfg.task.start_rotation_rad - cfg.task.start_rotation_jitter_rad > 3.14159265
 
 
 def test_cells_wait_for_what_they_need(paper, tmp_path):

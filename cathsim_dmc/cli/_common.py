@@ -225,10 +225,15 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
 
     from cathsim_dmc import tasks
     from cathsim_dmc.agents import CheckpointPolicy
+    from cathsim_dmc.config import TaskConfig
 
     task = cfg.task
     kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,
                   dense=task.dense, max_steps=task.max_steps)
+    for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m"):
+        # Only a changed start: a dataset's task options (compared when it is continued) stay as before.
+        if task.get(key) is not None and task[key] != getattr(TaskConfig, key):
+            kwargs[key] = task[key]
     if task.get("physics") is not None:
         kwargs["physics"] = task.physics
     if task.get("catheter") is not None:
