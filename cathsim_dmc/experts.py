@@ -66,17 +66,23 @@ class CenterlineExpert:
       retract_steps: control steps of full retraction when backing off.
       lost_margin_m: the tip counts as lost (in a wrong branch) this far outside the
         lumen of the path to the target.
+      hold_rotation_on_straight: no rotation where the path runs straight ahead of the tip
+        (the look-ahead within 0.25 rad of the shaft). There the aim is nearly along the
+        shaft, and the turn it asks for flips sign with small changes of the start rotation;
+        held, the first turn comes in the arch and varies smoothly with the start: labels
+        an image-only student can learn (`policy=expert_steady`, docs/paper.md#imitation).
     """
 
     def __init__(self, lookahead_radii: float = 1.5, aligned_rad: float = np.deg2rad(35),
                  stall_steps: int = 6, min_progress_m: float = 1e-3, retract_steps: int = 2,
-                 lost_margin_m: float = 2e-3):
+                 lost_margin_m: float = 2e-3, hold_rotation_on_straight: bool = False):
         self.lookahead_radii = lookahead_radii
         self.aligned_rad = aligned_rad
         self.stall_steps = stall_steps
         self.min_progress_m = min_progress_m
         self.retract_steps = retract_steps
         self.lost_margin_m = lost_margin_m
+        self.hold_rotation_on_straight = hold_rotation_on_straight
         self.settle_steps = 3
         self.axis_gain = 0.5  # of the full correction per step: a gentle turn the tip can follow
         self.strokes_per_retreat = 3
@@ -217,6 +223,8 @@ class CenterlineExpert:
         straight_ahead = off_axis < 0.25
         bend = component_across(tip - base, shaft)
         rotation = np.clip(angle / self._max_rotation_step, -1.0, 1.0)
+        if self.hold_rotation_on_straight and straight_ahead:
+            rotation = 0.0
 
         if self._retreat_to is not None:
             # Out of the branch and back in: a fresh entry rests the tip on another wall.

@@ -93,14 +93,16 @@ def with_catheter_parked(action: np.ndarray, env) -> np.ndarray:
     return np.concatenate([action, np.zeros(missing, dtype=action.dtype)]) if missing > 0 else action
 
 
-def _expert(seed: int = 0):
+def _expert(seed: int = 0, **options):
     from cathsim_dmc.experts import CenterlineExpert
 
-    return CenterlineExpert()
+    return CenterlineExpert(**options)
 
 
 BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomPolicy, "adversarial": AdversarialPolicy,
-                    "expert": _expert}
+                    "expert": _expert,
+                    # the expert without turns on straight stretches: data for image-only students
+                    "expert_steady": lambda seed=0: _expert(seed, hold_rotation_on_straight=True)}
 
 
 def make_policy(name: str, seed: int = 0):

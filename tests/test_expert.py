@@ -50,6 +50,32 @@ def test_expert_actions_stay_in_the_action_space(bca_type3):
     assert actions[:, 0].min() < 0 < actions[:, 0].max()
 
 
+def test_the_steady_expert_turns_only_in_the_arch_and_its_first_turn_follows_the_start_smoothly():
+    # The default expert's first turn flips sign between nearby starts (pi+0.05: +1, pi+0.1:
+    # -1); the steady one holds its rotation up the descending aorta and then turns in
+    # proportion to the start's offset, reaching the target from each start.
+    from cathsim_dmc.policies import make_policy
+
+    first_turns = []
+    for offset in (-0.2, 0.0, 0.2):
+        env = CathSimEnv(task="lcca", aorta="type1", obs="internal", start_rotation_rad=np.pi + offset,
+                         start_rotation_jitter_rad=0.0, start_insertion_jitter_m=0.0)
+        expert = make_policy("expert_steady")
+        observation, info = env.reset(seed=0)
+        actions = []
+        for _ in range(env.task.max_steps):
+            actions.append(expert(observation, env))
+            observation, _, terminated, truncated, info = env.step(actions[-1])
+            if terminated or truncated:
+                break
+        assert info["success"], f"start pi{offset:+}: ended {1000 * info['target_distance_m']:.1f} mm away"
+        rotations = np.array(actions)[:, 1]
+        turning = np.flatnonzero(rotations)
+        assert turning[0] >= 20  # none while the tip climbs the descending aorta
+        first_turns.append(rotations[turning[0]])
+    assert first_turns[0] > first_turns[1] > first_turns[2]
+
+
 def test_aim_error_of_a_bend_towards_and_away_from_a_turning_line():
     # The expert turns the tip's bend by this error before it inserts.
     from cathsim_dmc.anatomy.paths import CenterlinePath
