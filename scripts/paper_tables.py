@@ -229,18 +229,19 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                  _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_{target}')}", f"bc.epochs={BC_EPOCHS}",
                         f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
                  minutes=35, needs=(f"imitation/data/expert_{target}",)))
-    # Why the single frame falls short (docs/paper.md#imitation). The LCCA student with every
-    # start on one side of the view's mirror plane (rotation pi to pi + 0.3 rad, the default's
-    # spread), where mirrored starts give identical images; then students of the steady
-    # expert, which makes no turn on straight stretches, from the default starts.
-    add(Cell("imitation/data/expert_onesided_lcca", "collect",
-             _fixed("task=lcca", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
-                    *ONE_SIDED_START, "progress_bar=false"), minutes=10))
-    add(Cell("imitation/bc/expert_onesided_lcca", "bc",
-             _fixed("task=lcca", "aorta=type1", f"data={data('expert_onesided_lcca')}", *ONE_SIDED_START,
-                    f"bc.epochs={BC_EPOCHS}", f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false",
-                    "progress_bar=false"),
-             minutes=35, needs=("imitation/data/expert_onesided_lcca",)))
+    # Why the single frame falls short (docs/paper.md#imitation). Students with every start on
+    # one side of the view's mirror plane (rotation pi to pi + 0.3 rad, the default's spread),
+    # where mirrored starts give identical images; then students of the steady expert, which
+    # makes no turn on straight stretches, from the default starts.
+    for target in TARGETS:
+        add(Cell(f"imitation/data/expert_onesided_{target}", "collect",
+                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
+                        *ONE_SIDED_START, "progress_bar=false"), minutes=10))
+        add(Cell(f"imitation/bc/expert_onesided_{target}", "bc",
+                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_onesided_{target}')}",
+                        *ONE_SIDED_START, f"bc.epochs={BC_EPOCHS}", f"eval_episodes={FINAL_EPISODES}", "seed=0",
+                        "video=false", "progress_bar=false"),
+                 minutes=35, needs=(f"imitation/data/expert_onesided_{target}",)))
     for target in TARGETS:
         add(Cell(f"imitation/data/steady_{target}", "collect",
                  _fixed(f"task={target}", "aorta=type1", "policy=expert_steady", f"episodes={EXPERT_EPISODES}",
@@ -713,10 +714,10 @@ def imitation_table(plan: Plan) -> str:
                     PAPER_MAIN[("pixels", target)]),
                    ("Image w. ENN agent", f"imitation/bc/enn_{target}", PAPER_BC[target]),
                    ("Image w. scripted expert", f"imitation/bc/expert_{target}", None),
+                   ("Image w. scripted expert, starts on one side (π to π+0.3 rad)",
+                    f"imitation/bc/expert_onesided_{target}", None),
                    ("Image w. steady expert (no turns on straight stretches)", f"imitation/bc/steady_{target}", None)]
         if target == "lcca":
-            sources.append(("Image w. scripted expert, starts on one side (π to π+0.3 rad)",
-                            "imitation/bc/expert_onesided_lcca", None))
             sources.append(("Image w. scripted expert, 1,000 episodes", "imitation/bc/expert1000_lcca", None))
             sources.append(("Last 3 wire masks w. scripted expert, 1,000 episodes",
                             "imitation/bc/expert1000_masks3_lcca", None))
