@@ -179,9 +179,10 @@ def _train_args(obs: str, target: str, seed: int, extra=()):
                   "trainer.progress_bar=false", "trainer.video=false")
 
 
-# Estimated wall minutes of a main cell, two at a time (True: the internal preset), from the
-# first cells measured: the LCCA records 300 demonstrations and three takeover rounds.
-MAIN_MINUTES = {True: {"bca": 15, "lcca": 25}, False: {"bca": 70, "lcca": 100}}
+# Estimated wall minutes of a main cell, two at a time, from the first cells measured: the
+# LCCA records 300 demonstrations and three takeover rounds; the ENN's two images cost most.
+MAIN_MINUTES = {"internal": {"bca": 15, "lcca": 25}, "enn": {"bca": 70, "lcca": 100},
+                "image": {"bca": 45, "lcca": 70}}
 
 
 def main_cell(obs: str, target: str, seed: int) -> Cell:
@@ -190,7 +191,7 @@ def main_cell(obs: str, target: str, seed: int) -> Cell:
                 _train_args(obs, target, seed, [f"trainer.total_timesteps={steps}", "trainer.eval_every=1000",
                                                 "trainer.eval_episodes=10", "trainer.eval_at_start=true",
                                                 f"trainer.final_eval_episodes={FINAL_EPISODES}"]),
-                minutes=MAIN_MINUTES[obs == "internal"][target])
+                minutes=MAIN_MINUTES[obs if obs in MAIN_MINUTES else "image"][target])
 
 
 def protocol_cell(obs: str, target: str) -> Cell:
