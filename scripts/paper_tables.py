@@ -26,7 +26,7 @@ The cells:
                                  2 targets x 3 seeds, each best.zip scored on 50 episodes
                                  (seeds 10,000+) that did not choose it (seeds 20,000+)
   imitation/data/...             expert and ENN-agent datasets (cathsim-collect)
-  imitation/bc/...               image students (cathsim-bc): single frames, and one of 3 masks
+  imitation/bc/...               single-frame image students (cathsim-bc)
   force                          force prediction at 1K, 10K and 100K training images
   protocol/<obs>/<target>/seed0  the paper's protocol: the paper's SAC, Euclidean reward, no
                                  demonstrations, 100k steps
@@ -280,13 +280,6 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
     add(Cell("imitation/bc/expert1000_lcca", "bc",
              _fixed("task=lcca", "aorta=type1", f"data=[{data('expert_lcca')},{data('expert_more_lcca')}]",
                     "bc.epochs=10", f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-             minutes=60, needs=("imitation/data/expert_lcca", "imitation/data/expert_more_lcca")))
-    # The same data through three stacked wire masks: does seeing the last motion settle the
-    # turn that one image cannot (docs/paper.md#imitation)?
-    add(Cell("imitation/bc/expert1000_masks3_lcca", "bc",
-             _fixed("task=lcca", "aorta=type1", f"data=[{data('expert_lcca')},{data('expert_more_lcca')}]",
-                    "bc.image_key=guidewire_mask", "bc.frames=3", "bc.epochs=10", f"eval_episodes={FINAL_EPISODES}",
-                    "seed=0", "video=false", "progress_bar=false"),
              minutes=60, needs=("imitation/data/expert_lcca", "imitation/data/expert_more_lcca")))
     for target in TARGETS:
         for obs in PROTOCOL:
@@ -720,8 +713,6 @@ def imitation_table(plan: Plan) -> str:
                    ("Image w. steady expert (no turns on straight stretches)", f"imitation/bc/steady_{target}", None)]
         if target == "lcca":
             sources.append(("Image w. scripted expert, 1,000 episodes", "imitation/bc/expert1000_lcca", None))
-            sources.append(("Last 3 wire masks w. scripted expert, 1,000 episodes",
-                            "imitation/bc/expert1000_masks3_lcca", None))
         for label, name, paper in sources:
             if name is not None:
                 names.append(name)
