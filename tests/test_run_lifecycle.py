@@ -25,10 +25,32 @@ def _tool(name):
     return [sys.executable, "-m", f"cathsim_dmc.cli.{name}"]
 
 
+# Runs a module with SIGINT back at its default first: a suite started in the background by
+# a non-interactive shell inherits SIGINT ignored, and Python keeps an ignored SIGINT, so
+# Ctrl-C would never reach the tool under test.
+_WITH_CTRL_C = "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
+               "sys.argv = sys.argv[1:]; runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)"
+
+
+_STARTED = []
+
+
+@pytest.fixture(autouse=True)
+def _no_process_outlives_its_test():
+    yield
+    while _STARTED:  # a failed assertion must not leave a 5,000-episode run behind
+        process = _STARTED.pop()
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
 def _start(name, args, cwd, log):
     """The tool as a process, its stdout and stderr in files (a pipe nobody reads could block it)."""
-    return subprocess.Popen([*_tool(name), *args], cwd=cwd, stdout=open(f"{log}.out", "w"),
-                            stderr=open(f"{log}.err", "w"))
+    process = subprocess.Popen([sys.executable, "-c", _WITH_CTRL_C, f"cathsim_dmc.cli.{name}", *args], cwd=cwd,
+                               stdout=open(f"{log}.out", "w"), stderr=open(f"{log}.err", "w"))
+    _STARTED.append(process)
+    return process
 
 
 def _wait_for(condition, timeout=600):
