@@ -67,10 +67,11 @@ class CenterlineExpert:
       lost_margin_m: the tip counts as lost (in a wrong branch) this far outside the
         lumen of the path to the target.
       hold_rotation_on_straight: no rotation where the path runs straight ahead of the tip
-        (the look-ahead within 0.25 rad of the shaft). There the aim is nearly along the
-        shaft, and the turn it asks for flips sign with small changes of the start rotation;
-        held, the first turn comes in the arch and varies smoothly with the start: labels
-        an image-only student can learn (`policy=expert_steady`, docs/paper.md#imitation).
+        (the look-ahead within about 14 degrees of the shaft: `aim_error`'s off-axis share
+        below 0.25, where insertion needs no aim). There the aim is nearly along the shaft,
+        and the turn it asks for flips sign with small changes of the start rotation; held,
+        the first turn comes in the arch and varies smoothly with the start: labels an
+        image-only student can learn (`policy=expert_steady`, docs/paper.md#imitation).
     """
 
     def __init__(self, lookahead_radii: float = 1.5, aligned_rad: float = np.deg2rad(35),

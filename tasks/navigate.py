@@ -75,8 +75,8 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, progress_we
                          f"choose one in [0, pi]")
     if start_insertion_jitter_m is not None and check_number(
             "start_insertion_jitter_m", start_insertion_jitter_m, 0.0) > MAX_START_INSERTION_JITTER_M:
-        raise ValueError(f"start_insertion_jitter_m={start_insertion_jitter_m!r} m would start the tip beyond the "
-                         f"access; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m")
+        raise ValueError(f"start_insertion_jitter_m={start_insertion_jitter_m!r} m is deeper than a start below the "
+                         f"arch allows; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m")
 
 
 @dataclass(frozen=True)
