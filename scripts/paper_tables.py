@@ -223,35 +223,30 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
         for seed in SEEDS:
             for target in TARGETS:
                 add(main_cell(obs, target, seed))
+    def dataset(name, target, policy, *extra):  # 300 episodes of a scripted policy
+        return Cell(f"imitation/data/{name}", "collect",
+                    _fixed(f"task={target}", "aorta=type1", f"policy={policy}", f"episodes={EXPERT_EPISODES}",
+                           "seed=0", *extra, "progress_bar=false"), minutes=10)
+
+    def student(name, target, *extra):  # the single-frame image student of imitation/data/<name>
+        return Cell(f"imitation/bc/{name}", "bc",
+                    _fixed(f"task={target}", "aorta=type1", f"data={data(name)}", *extra, f"bc.epochs={BC_EPOCHS}",
+                           f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
+                    minutes=BC_MINUTES, needs=(f"imitation/data/{name}",))
+
     for target in TARGETS:
-        add(Cell(f"imitation/data/expert_{target}", "collect",
-                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
-                        "progress_bar=false"), minutes=10))
-        add(Cell(f"imitation/bc/expert_{target}", "bc",
-                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_{target}')}", f"bc.epochs={BC_EPOCHS}",
-                        f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-                 minutes=BC_MINUTES, needs=(f"imitation/data/expert_{target}",)))
+        add(dataset(f"expert_{target}", target, "expert"))
+        add(student(f"expert_{target}", target))
     # Why the single frame falls short (docs/paper.md#imitation). Students with every start on
     # one side of the view's mirror plane (rotation pi to pi + 0.3 rad, the default's spread),
     # where mirrored starts give identical images; then students of the steady expert, which
     # makes no turn on straight stretches, from the default starts.
     for target in TARGETS:
-        add(Cell(f"imitation/data/expert_onesided_{target}", "collect",
-                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={EXPERT_EPISODES}", "seed=0",
-                        *ONE_SIDED_START, "progress_bar=false"), minutes=10))
-        add(Cell(f"imitation/bc/expert_onesided_{target}", "bc",
-                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'expert_onesided_{target}')}",
-                        *ONE_SIDED_START, f"bc.epochs={BC_EPOCHS}", f"eval_episodes={FINAL_EPISODES}", "seed=0",
-                        "video=false", "progress_bar=false"),
-                 minutes=BC_MINUTES, needs=(f"imitation/data/expert_onesided_{target}",)))
+        add(dataset(f"expert_onesided_{target}", target, "expert", *ONE_SIDED_START))
+        add(student(f"expert_onesided_{target}", target, *ONE_SIDED_START))
     for target in TARGETS:
-        add(Cell(f"imitation/data/steady_{target}", "collect",
-                 _fixed(f"task={target}", "aorta=type1", "policy=expert_steady", f"episodes={EXPERT_EPISODES}",
-                        "seed=0", "progress_bar=false"), minutes=10))
-        add(Cell(f"imitation/bc/steady_{target}", "bc",
-                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'steady_{target}')}", f"bc.epochs={BC_EPOCHS}",
-                        f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-                 minutes=BC_MINUTES, needs=(f"imitation/data/steady_{target}",)))
+        add(dataset(f"steady_{target}", target, "expert_steady"))
+        add(student(f"steady_{target}", target))
     # The ENN agent's dataset as soon as its seeds finish: it needs their checkpoints, which
     # only the machine that trained them has.
     for target in TARGETS:
@@ -261,10 +256,7 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                                          f"episodes={EXPERT_EPISODES}", "seed=0", "progress_bar=false"],
                  minutes=25, needs=enn_seeds,
                  reads=lambda plan, t=target: (str(best_enn_run(plan, t).relative_to(plan.root)),)))
-        add(Cell(f"imitation/bc/enn_{target}", "bc",
-                 _fixed(f"task={target}", "aorta=type1", f"data={data(f'enn_{target}')}", f"bc.epochs={BC_EPOCHS}",
-                        f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-                 minutes=BC_MINUTES, needs=(f"imitation/data/enn_{target}",)))
+        add(student(f"enn_{target}", target))
     for obs in ("pixels_mask", "pixels", "internal_pixels"):
         for seed in SEEDS:
             for target in TARGETS:
