@@ -210,7 +210,7 @@ def best_enn_run(plan: Plan, target: str) -> Path:
     names = {seed: f"main/enn/{target}/seed{seed}" for seed in SEEDS}
     scored = []
     for seed in [s for s in SEEDS if plan.here(names[s])] or SEEDS:
-        summary = plan.result(f"main/enn/{target}/seed{seed}")["summary"]
+        summary = plan.result(names[seed])["summary"]
         scored.append((-summary["success_pct"]["mean"], -summary["spl_pct"]["mean"], seed))
     return plan.root / f"main/enn/{target}/seed{min(scored)[2]}"
 
