@@ -319,23 +319,37 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _boot_id() -> str:
+    """This boot's id (Linux): a lock from before a restart is stale even if its pid is in use again."""
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _held(lock: Path) -> bool:
+    """Whether the cell's lock belongs to a process running now (its pid alive, on this boot)."""
+    try:
+        pid, _, boot = lock.read_text().strip().partition(" ")
+        pid = int(pid or 0)
+    except (OSError, ValueError):
+        return False
+    return bool(pid) and boot == _boot_id() and _alive(pid)
+
+
 def _claim(folder: Path) -> bool:
-    """Take the cell's lock; a lock whose process has died is taken over."""
+    """Take the cell's lock; a lock whose process has died, or is from an earlier boot, is taken over."""
     folder.mkdir(parents=True, exist_ok=True)
     lock = folder / LOCK_FILE
     for _ in range(2):
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
         except FileExistsError:
-            try:
-                pid = int(lock.read_text().strip() or 0)
-            except (OSError, ValueError):
-                pid = 0
-            if pid and _alive(pid):
+            if _held(lock):
                 return False
             lock.unlink(missing_ok=True)
             continue
-        os.write(fd, str(os.getpid()).encode())
+        os.write(fd, f"{os.getpid()} {_boot_id()}".encode())
         os.close(fd)
         return True
     return False
@@ -495,7 +509,7 @@ def state(plan: Plan, cell: Cell) -> str:
     folder = plan.folder(cell)
     if plan.done(cell):
         return "done" if plan.here(cell.name) else "recorded"  # recorded: its files are on another machine
-    if (folder / LOCK_FILE).is_file():
+    if _held(folder / LOCK_FILE):
         return "running"
     if folder.is_dir() and any(folder.iterdir()):
         return "partial"

@@ -3,6 +3,7 @@ killed one resumes, the tables are written from what finished, and bad input is 
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -128,15 +129,21 @@ def test_a_deadline_is_its_next_occurrence(paper):
     assert paper.parse_deadline("13:30", now) == datetime.datetime(2026, 11, 29, 13, 30)
 
 
-def test_a_held_lock_keeps_a_second_runner_out_and_a_dead_one_is_taken_over(paper, tmp_path):
+def test_a_held_lock_keeps_a_second_runner_out_and_a_stale_one_is_taken_over(paper, tmp_path):
     folder = tmp_path / "cell"
+    lock = folder / paper.LOCK_FILE
     assert paper._claim(folder)
     assert not paper._claim(folder)  # held by this (live) process
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    (folder / paper.LOCK_FILE).write_text(str(dead.pid))
+    lock.write_text(f"{dead.pid} {paper._boot_id()}")
     assert paper._claim(folder)
-    assert (folder / paper.LOCK_FILE).read_text() == str(os.getpid())
+    assert lock.read_text() == f"{os.getpid()} {paper._boot_id()}"
+    # A lock written before a restart names a pid that may be in use again (here, this
+    # process's own): it is stale all the same.
+    lock.write_text(f"{os.getpid()} another-boot")
+    assert not paper._held(lock)
+    assert paper._claim(folder)
 
 
 def test_bad_input_is_one_line_and_exit_2(repo_root, tmp_path):
@@ -173,6 +180,8 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     assert not (folder / paper.CELL_FILE).exists() and (folder / paper.LOCK_FILE).exists()
+    listing = _script(repo_root, "--root", str(tmp_path), "plan").stdout
+    assert re.search(rf"^{cell}\s+train\s+partial", listing, re.M), listing  # its lock's process is gone
     # An unfinished seed's curve is not drawn: it would stop short of the finished ones.
     assert (folder / "evaluations.jsonl").read_text().strip()
     doc = tmp_path / "paper.md"
