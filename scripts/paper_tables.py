@@ -769,6 +769,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
     drawn = 0
     for col, target in enumerate(TARGETS):
         top, bottom = axes[0][col], axes[1][col]
+        returns = None  # the protocol's mean return: it still shows learning while every episode fails
         for obs, label in MODALITIES.items():
             # Finished seeds only, as in the main table: a running seed's curve stops short.
             names = [f"main/{obs}/{target}/seed{s}" for s in SEEDS]
@@ -785,10 +786,16 @@ def curves_figure(plan: Plan, path: Path) -> str:
                 name = f"protocol/{obs}/{target}/seed0"
                 evals = _evaluations(plan, name)
                 if evals:  # a protocol cell runs for hours: its curve so far is drawn, and says so
-                    running = "" if _finished(plan, name) else f", running: {evals[-1]['step']:,} steps so far"
+                    running = "" if _finished(plan, name) else f", running: {evals[-1]['step']:,} steps"
                     bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
-                                color=colours[obs], label=f"{label}, paper's protocol (seed 0{running})")
+                                color=colours[obs], label=f"{label} (seed 0{running})")
+                    returns = returns or bottom.twinx()
+                    returns.plot([e["step"] for e in evals], [e["mean_return"] for e in evals],
+                                 color=colours[obs], ls=":")
                     drawn += 1
+        if returns is not None:
+            returns.set_ylabel("mean return, Euclidean reward (dotted)")
+            returns.set_ylim(top=max(0.0, returns.get_ylim()[1]))  # 0 at the top at least: apart from 300 steps
         human = plan.root / "human" / target / "metrics.json"
         for ax in (top, bottom):
             if human.is_file():
@@ -801,9 +808,9 @@ def curves_figure(plan: Plan, path: Path) -> str:
         bottom.set_title(f"{target.upper()}, type I: the paper's protocol")
         top.set_ylabel("episode length (steps, 10 episodes)")
         bottom.set_ylabel("episode length (steps, 10 episodes)")
-        for ax in (top, bottom):
+        for ax, where in ((top, "best"), (bottom, "lower right")):  # the return starts low on the left
             if ax.get_legend_handles_labels()[0]:
-                ax.legend(fontsize=7)
+                ax.legend(fontsize=7, loc=where)
     if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
         fig.text(0.5, 0.005, "No human data recorded (cathsim-teleop; see docs/paper.md)", ha="center", fontsize=8)
     fig.tight_layout(rect=(0, 0.02, 1, 1))
@@ -811,8 +818,8 @@ def curves_figure(plan: Plan, path: Path) -> str:
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return (f"![episode length against training steps]({path.name})\n\n"
-            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). "
-            f"{drawn} curves drawn.\n")
+            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). Dotted, "
+            f"right axis: the protocol's mean return. {drawn} curves drawn.\n")
 
 
 def _cost_group(name: str) -> tuple:
