@@ -558,7 +558,8 @@ def _result_from(folder: Path) -> dict:
             result["summary"] = report["summary"]
             result["per_episode"] = [{k: e[k] for k in METRIC_COLUMNS} for e in report["per_episode"]]
             break
-    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length")} for e in read_evaluations(folder)]
+    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length", "mean_return")}
+             for e in read_evaluations(folder)]
     if curve:
         result["evaluations"] = curve
     if (folder / "force.json").is_file():
@@ -766,7 +767,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
 
     fig, axes = plt.subplots(2, len(TARGETS), figsize=(4.6 * len(TARGETS), 6.4), squeeze=False)
     colours = dict(zip(MODALITIES, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
-    drawn = 0
+    drawn, with_return = 0, False
     for col, target in enumerate(TARGETS):
         top, bottom = axes[0][col], axes[1][col]
         returns = None  # the protocol's mean return: it still shows learning while every episode fails
@@ -789,11 +790,13 @@ def curves_figure(plan: Plan, path: Path) -> str:
                     running = "" if _finished(plan, name) else f", running: {evals[-1]['step']:,} steps"
                     bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
                                 color=colours[obs], label=f"{label} (seed 0{running})")
-                    returns = returns or bottom.twinx()
-                    returns.plot([e["step"] for e in evals], [e["mean_return"] for e in evals],
-                                 color=colours[obs], ls=":")
+                    if all("mean_return" in e for e in evals):  # records before 2026-11-28 did not keep it
+                        returns = returns or bottom.twinx()
+                        returns.plot([e["step"] for e in evals], [e["mean_return"] for e in evals],
+                                     color=colours[obs], ls=":")
                     drawn += 1
         if returns is not None:
+            with_return = True
             returns.set_ylabel("mean return, Euclidean reward (dotted)")
             returns.set_ylim(top=max(0.0, returns.get_ylim()[1]))  # 0 at the top at least: apart from 300 steps
         human = plan.root / "human" / target / "metrics.json"
@@ -818,8 +821,9 @@ def curves_figure(plan: Plan, path: Path) -> str:
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return (f"![episode length against training steps]({path.name})\n\n"
-            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). Dotted, "
-            f"right axis: the protocol's mean return. {drawn} curves drawn.\n")
+            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). "
+            + ("Dotted, right axis: the protocol's mean return. " if with_return else "")
+            + f"{drawn} curves drawn.\n")
 
 
 def _cost_group(name: str) -> tuple:

@@ -121,6 +121,17 @@ def test_a_cell_whose_input_finished_on_another_machine_runs_that_input_again_fi
     assert paper.next_cell(plan, [cell], set(), minutes_left=cell.minutes / 2 + 1) is cell
 
 
+def test_a_protocol_curve_from_the_record_alone_draws_its_return_when_kept(paper, tmp_path):
+    plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
+    curve = [{"step": step, "success_rate": 0.0, "mean_episode_length": 300.0} for step in (10, 20)]
+    _record(plan.record, {"protocol/pixels/bca/seed0": {"evaluations": curve}})  # kept no return
+    caption = paper.curves_figure(plan, tmp_path / "old.png")
+    assert "1 curves drawn" in caption and "mean return" not in caption
+    _record(plan.record, {"protocol/pixels/bca/seed0": {"evaluations": [dict(e, mean_return=-50.0) for e in curve]}})
+    caption = paper.curves_figure(plan, tmp_path / "new.png")
+    assert "1 curves drawn" in caption and "mean return" in caption
+
+
 def test_a_deadline_is_its_next_occurrence(paper):
     import datetime
 
