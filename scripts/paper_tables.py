@@ -798,7 +798,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
         if returns is not None:
             with_return = True
             returns.set_ylabel("mean return, Euclidean reward (dotted)")
-            returns.set_ylim(top=max(0.0, returns.get_ylim()[1]))  # 0 at the top at least: apart from 300 steps
+            returns.set_ylim(top=max(0.0, returns.get_ylim()[1]))  # 0 at the top: a flat return sits below the 300-step line
         human = plan.root / "human" / target / "metrics.json"
         for ax in (top, bottom):
             if human.is_file():
