@@ -2,8 +2,9 @@
 
 cathsim-eval, cathsim-train (its final report and its periodic evaluation),
 cathsim-collect and cathsim-bc roll out with `run_episodes`; they and cathsim-teleop
-(a person's episodes) write the same report (`write_report`: metrics.json, metrics.md,
-path.png, forces.png), so their numbers are comparable. A policy is a function (observation, env) -> action
+(a person's episodes) write the same report (`write_report`: metrics.json, metrics.md with
+the failed episodes grouped by where they ended, path.png, forces.png), so their numbers
+are comparable. A policy is a function (observation, env) -> action
 (`cathsim_dmc.policies`).
 """
 
@@ -95,18 +96,26 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
     return summaries
 
 
-def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None) -> dict:
+def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None,
+                 tree_for=None) -> dict:
     """metrics.json, metrics.md, path.png (unless `asset` is None) and forces.png for one
-    policy on one (task, aorta)."""
-    from cathsim_dmc import metrics, plots
+    policy on one (task, aorta). With `tree_for` (`episode_ends.trees_of(env)`) the report
+    also says where each episode ended, and metrics.md groups the failures by it."""
+    from cathsim_dmc import episode_ends, metrics, plots
     from cathsim_dmc.trajectory import wall_forces_n
 
     out_dir = Path(out_dir)
     per_episode = metrics.trajectory_metrics(arrays)
     summary = metrics.summarize(per_episode)
     report = {**label, "summary": summary, "per_episode": [vars(m) for m in per_episode], "episodes": episodes or []}
+    table = metrics.markdown_table([(_row_label(label), summary)])
+    if tree_for is not None:
+        ends = episode_ends.episode_ends(arrays, tree_for)
+        report["episode_ends"] = [vars(e) for e in ends]
+        failures = episode_ends.failures_table(ends)
+        table += f"\n{failures}" if failures else ""
     (out_dir / METRICS_JSON).write_text(json.dumps(report, indent=2))
-    (out_dir / METRICS_MD).write_text(metrics.markdown_table([(_row_label(label), summary)]))
+    (out_dir / METRICS_MD).write_text(table)
     target = label["task"]
     rows = [arrays["episode"] == e for e in range(len(arrays["start_tip_position_m"]))]
     title = f"{label['policy']} on {target}/{label['aorta']}: success {summary['success_pct']['mean']:.0f}%"
@@ -175,6 +184,9 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     frames = [] if video else None
     label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
              "physics": task.physics_setting, **(label or {})}
+    from cathsim_dmc.episode_ends import trees_of
+
+    tree_for = trees_of(env)
     try:
         summaries = run_episodes(env, policy, episodes, seed, recorder, frames, video_size, show_progress)
     except EpisodesInterrupted as interrupt:
@@ -186,20 +198,20 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
             raise Interrupted(f"evaluation stopped before its first episode ended; nothing written in {out_dir}")
         recorder.keep_episodes(len(summaries))
         label.update(partial=True, episodes_finished=len(summaries), episodes_requested=episodes)
-        _write_results(recorder, frames, video_format, task, label, out_dir, summaries)
+        _write_results(recorder, frames, video_format, task, label, out_dir, summaries, tree_for)
         raise Interrupted(f"evaluation stopped after {len(summaries)} of {episodes} episodes; their report "
                           f"(labelled partial) is in {out_dir}") from None
-    return _write_results(recorder, frames, video_format, task, label, out_dir, summaries)
+    return _write_results(recorder, frames, video_format, task, label, out_dir, summaries, tree_for)
 
 
-def _write_results(recorder, frames, video_format, task, label, out_dir, summaries) -> dict:
+def _write_results(recorder, frames, video_format, task, label, out_dir, summaries, tree_for) -> dict:
     recorder.save(out_dir / "trajectories.npz")
     if frames:
         write_video(out_dir / f"video.{video_format}", frames)
     # One anatomy's picture cannot hold paths from several (aorta=random): no path.png then.
     arrays = recorder.arrays()
     asset = None if "episode_aorta" in arrays else task.aorta.asset
-    return write_report(arrays, asset, label, out_dir, summaries)
+    return write_report(arrays, asset, label, out_dir, summaries, tree_for)
 
 
 def write_video(path, frames, fps: int = 10) -> Path:

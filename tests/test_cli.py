@@ -35,6 +35,11 @@ def test_eval_writes_trajectories_and_video(tmp_path):
     assert report["summary"]["path_length_cm"]["mean"] >= climb_cm
     for name in ("metrics.md", "path.png", "forces.png"):
         assert (tmp_path / "run" / name).stat().st_size > 0
+    # 12 steps climb the descending aorta: the report says the episode ended short of the target.
+    (end,) = report["episode_ends"]
+    assert end["ended"] == "short of the target" and end["other_branches"] == []
+    assert end["end_along_vessel_mm"] > 100
+    assert "Failed episodes: 1 of 1" in (tmp_path / "run" / "metrics.md").read_text()
 
 
 def test_expert_reaches_the_lcca(tmp_path):

@@ -91,6 +91,8 @@ def test_cathsim_eval_records_each_episodes_anatomy(tmp_path):
     report = json.loads((run / "metrics.json").read_text())
     assert report["aorta"] == "random" and report["summary"]["success_pct"]["mean"] == 100
     assert [e["aorta"] for e in report["episodes"]] == list(data["episode_aorta"])
+    # Each episode's end is placed on its own anatomy's centerlines: at the target.
+    assert all(e["ended"] == "reached the target" and e["end_along_vessel_mm"] < 5 for e in report["episode_ends"])
     assert not (run / "path.png").exists()  # one anatomy's picture cannot hold the others' paths
 
 

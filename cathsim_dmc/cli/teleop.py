@@ -33,6 +33,7 @@ def teleop(cfg) -> dict | None:
 
     from cathsim_dmc.checks import check_number
     from cathsim_dmc.cli._common import env_kwargs
+    from cathsim_dmc.episode_ends import trees_of
     from cathsim_dmc.evaluation import METRICS_MD, write_report
     from cathsim_dmc.gym import CathSimEnv
     from cathsim_dmc.teleop import HELP, TeleopSession
@@ -74,7 +75,8 @@ def teleop(cfg) -> dict | None:
             return None
         recorder.save(out_dir / "trajectories.npz")
         label = {"task": env.task.target_name, "aorta": env.aorta_name, "policy": "human"}
-        report = write_report(recorder.arrays(), env.task.aorta.asset, label, out_dir, session.summaries)
+        report = write_report(recorder.arrays(), env.task.aorta.asset, label, out_dir, session.summaries,
+                              trees_of(env))
     finally:
         env.close()
     print((out_dir / METRICS_MD).read_text(), end="")
