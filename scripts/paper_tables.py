@@ -505,6 +505,12 @@ def run(plan: Plan, only: list | None, jobs: int, deadline: datetime.datetime | 
     return 1 if failed else 0
 
 
+def _progress(plan: Plan, name: str) -> str:
+    """An unfinished cell with evaluations: "running" while its process holds the lock, else
+    "stopped" (`run` resumes it from its last checkpoint)."""
+    return "running" if _held(plan.root / name / LOCK_FILE) else "stopped"
+
+
 def state(plan: Plan, cell: Cell) -> str:
     folder = plan.folder(cell)
     if plan.done(cell):
@@ -688,7 +694,7 @@ def protocol_table(plan: Plan) -> str:
                 s = report["summary"]
                 result = f"{s['success_pct']['mean']:.0f} / {s['spl_pct']['mean']:.0f}"
             else:
-                result = "running" if evals else "not run"
+                result = _progress(plan, name) if evals else "not run"
             rows.append([MODALITIES[obs], target.upper(), last, curve, result, recipe,
                          "{} / {}".format(*PAPER_MAIN[(obs, target)])])
     header = ["Modality", "Target", "Steps", "Success every 5k steps (%, 10 episodes)",
@@ -779,7 +785,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
                 steps = sorted({e["step"] for r in runs for e in r})
                 values = [[e["mean_episode_length"] for r in runs for e in r if e["step"] == s] for s in steps]
                 top.plot(steps, [statistics.median(v) for v in values], color=colours[obs],
-                         label=f"{label} ({len(runs)} seeds)")
+                         label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
                 top.fill_between(steps, [min(v) for v in values], [max(v) for v in values], color=colours[obs],
                                  alpha=0.15)
                 drawn += 1
@@ -787,7 +793,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
                 name = f"protocol/{obs}/{target}/seed0"
                 evals = _evaluations(plan, name)
                 if evals:  # a protocol cell runs for hours: its curve so far is drawn, and says so
-                    running = "" if _finished(plan, name) else f", running: {evals[-1]['step']:,} steps"
+                    running = "" if _finished(plan, name) else f", {_progress(plan, name)}: {evals[-1]['step']:,} steps"
                     bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
                                 color=colours[obs], label=f"{label} (seed 0{running})")
                     if all("mean_return" in e for e in evals):  # records before 2026-11-28 did not keep it

@@ -132,6 +132,20 @@ def test_a_protocol_curve_from_the_record_alone_draws_its_return_when_kept(paper
     assert "1 curves drawn" in caption and "mean return" in caption
 
 
+def test_an_unfinished_protocol_cell_is_running_only_while_its_lock_is_held(paper, tmp_path):
+    plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
+    folder = tmp_path / "protocol/internal/lcca/seed0"
+    folder.mkdir(parents=True)
+    (folder / "evaluations.jsonl").write_text(json.dumps({"step": 10, "success_rate": 0.0, "mean_return": -40.0,
+                                                          "mean_episode_length": 300.0}) + "\n")
+    def row():
+        return next(line for line in paper.protocol_table(plan).splitlines() if "| Internal | LCCA |" in line)
+
+    assert "| stopped |" in row() and "running" not in row()
+    assert paper._claim(folder)  # this process runs it now
+    assert "| running |" in row()
+
+
 def test_a_deadline_is_its_next_occurrence(paper):
     import datetime
 
