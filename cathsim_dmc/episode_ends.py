@@ -53,6 +53,7 @@ def place(tree: CenterlineTree, point_m, target: str) -> tuple[str, float]:
     """(where `point_m` lies, its distance to the target along the vessel in metres)."""
     location = tree.locate(point_m, prefer=target)
     name, s, depth = location
+    along_m = tree.geodesic_from_location(location, target)
     # Past the point where two centerlines part, both tubes still cover the arch around the
     # branch's mouth: a tip is in the branch once it is clear of the target line's tube.
     if (name != target and s > tree.junction_arclength_m(name, target)
@@ -60,13 +61,13 @@ def place(tree: CenterlineTree, point_m, target: str) -> tuple[str, float]:
         where = BRANCH + name.upper()
     elif depth > OFF_CENTERLINES_M:
         where = OFF_CENTERLINES
-    elif tree.geodesic_from_location(location, target) <= BESIDE_TARGET_M:
+    elif along_m <= BESIDE_TARGET_M:
         where = BESIDE_TARGET
     elif name == target and s > tree.lines[target].length_m:
         where = PAST_TARGET
     else:
         where = SHORT_OF_TARGET
-    return where, tree.geodesic_from_location(location, target)
+    return where, along_m
 
 
 def episode_ends(arrays: dict, tree_for: Callable[[str], CenterlineTree]) -> list:

@@ -173,6 +173,7 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
 
     `label` adds fields to the report (cathsim-train adds its training seed).
     """
+    from cathsim_dmc.episode_ends import trees_of
     from cathsim_dmc.trajectory import TrajectoryRecorder
 
     check_report_options(episodes, video_format, video_size)
@@ -184,8 +185,6 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     frames = [] if video else None
     label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
              "physics": task.physics_setting, **(label or {})}
-    from cathsim_dmc.episode_ends import trees_of
-
     tree_for = trees_of(env)
     try:
         summaries = run_episodes(env, policy, episodes, seed, recorder, frames, video_size, show_progress)
