@@ -23,8 +23,8 @@ from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc.trajectory import wall_forces_n
 
 OFF_CENTERLINES_M = 1e-3  # a tip this far outside every tube is off the centerlines
-# Passing a branch's mouth, the tip bulges up to about 2 mm out of the target line's tube for a
-# step or two (type I's arch); a tip that turns in is 3-8 mm out within two steps.
+# Passing a branch's mouth, the tip bulges up to about 1.2 mm out of the target line's tube for
+# one to four steps (type I's arch); a tip that turns in is 2.5-8 mm out within two to four steps.
 IN_BRANCH_M = 2e-3
 BESIDE_TARGET_M = 4e-3  # the paper's success radius: this close along the vessel is the target's depth
 SHORT_OF_TARGET = "short of the target"

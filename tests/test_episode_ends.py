@@ -69,7 +69,7 @@ def test_each_way_of_failing_is_told_apart(tree):
     assert ends[1].end_along_vessel_mm == pytest.approx(12, abs=0.5)
     assert 4.9 < ends[2].closest_to_target_mm < 5.1 and ends[2].end_along_vessel_mm < 1
     assert ends[3].end_along_vessel_mm == pytest.approx(1e3 * (end - 0.08), abs=0.5)
-    # Passing the LSA's and LCCA's mouths on the BCA's centerline is not entering them.
+    # A tip on the BCA's own centerline is never placed in another branch.
     assert all(e.other_branches == () for e in ends[1:])
 
 
