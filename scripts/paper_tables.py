@@ -180,10 +180,12 @@ def _train_args(obs: str, target: str, seed: int, extra=()):
                   "trainer.progress_bar=false", "trainer.video=false")
 
 
-# Estimated wall minutes of a main cell, two at a time, from the first cells measured: the
-# LCCA records 300 demonstrations and three takeover rounds; the ENN's two images cost most.
-MAIN_MINUTES = {"internal": {"bca": 15, "lcca": 25}, "enn": {"bca": 70, "lcca": 100},
-                "image": {"bca": 45, "lcca": 70}}
+# Wall minutes of a main cell, two at a time: the medians measured 2026-11-27 to 2026-11-29
+# (docs/paper.md#cost). The LCCA records 300 demonstrations and three takeover rounds; the
+# ENN's two images cost most.
+MAIN_MINUTES = {"internal": {"bca": 17, "lcca": 21}, "enn": {"bca": 58, "lcca": 76},
+                "pixels": {"bca": 22, "lcca": 27}, "pixels_mask": {"bca": 36, "lcca": 48},
+                "internal_pixels": {"bca": 18, "lcca": 26}}
 
 
 def main_cell(obs: str, target: str, seed: int) -> Cell:
@@ -192,7 +194,7 @@ def main_cell(obs: str, target: str, seed: int) -> Cell:
                 _train_args(obs, target, seed, [f"trainer.total_timesteps={steps}", "trainer.eval_every=1000",
                                                 "trainer.eval_episodes=10", "trainer.eval_at_start=true",
                                                 f"trainer.final_eval_episodes={FINAL_EPISODES}"]),
-                minutes=MAIN_MINUTES[obs if obs in MAIN_MINUTES else "image"][target])
+                minutes=MAIN_MINUTES[obs][target])
 
 
 def protocol_cell(obs: str, target: str) -> Cell:
