@@ -31,6 +31,8 @@ DEVICES = ("auto", "cpu", "cuda")  # or cuda:<index>
 FINAL_POLICIES = ("best", "last")
 # tasks.load(extra_observations=...)'s names (tasks/observations.py reads them from here)
 EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
+# the scripted experts that can demonstrate (cathsim_dmc.policies.BUILTIN_POLICIES' names)
+DEMONSTRATORS = ("expert", "expert_steady")
 
 
 def _number(default, minimum=None, maximum=None, above=None, whole=False, choices=None, below=None):
@@ -129,6 +131,9 @@ class DemosConfig:
     dagger_episodes: int = _count(50, minimum=1)
     dagger_capacity: int = _count(200_000, minimum=1)  # most expert labels kept
     path: Optional[str] = None         # a cathsim-collect folder to take them from instead of recording the expert
+    # the scripted expert that records the demonstrations, takes over and labels: expert, or
+    # expert_steady (no turns where the path runs straight ahead of the tip)
+    expert: str = _number("expert", choices=DEMONSTRATORS)
 
 
 @dataclass

@@ -454,3 +454,29 @@ def test_dagger_rounds_add_labels_that_a_resumed_run_reads_back(tmp_path):
         assert data["obs_joint_pos"].shape[0] == 24
     run(40, resume=True)
     assert counts == [24, 24]
+
+
+def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
+    """demos.expert=expert_steady: every demonstration, takeover and DAgger label comes from
+    the steady expert, which never turns while the tip climbs the descending aorta (the
+    default expert does turn there, at these starts)."""
+    from cathsim_dmc.rl import train as training
+
+    algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
+    demos = dict(episodes=2, expert="expert_steady", pretrain_actor_steps=5, takeover_rounds=1,
+                 takeover_episodes=1, takeover_max_student_steps=5, dagger_rounds=1, dagger_episodes=1,
+                 bc_weight=0.5)
+    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 15})
+    make = lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15)  # noqa: E731
+    trainer = dict(total_timesteps=12, eval_every=0, progress_bar=False, video=False, checkpoint_every=0)
+    try:
+        result = training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1", demos=demos,
+                                make_demo_env=make)
+    finally:
+        env.close()
+    buffer = result.model.replay_buffer
+    recorded, labelled = buffer.demos.size(), buffer.label_count()
+    assert recorded > 30 and labelled == 15  # two 15-step episodes and a takeover; one driven episode
+    assert np.all(buffer.demos.actions[:recorded, 0, 1] == 0.0)
+    assert np.all(buffer.labels.actions[:labelled, 0, 1] == 0.0)
+    assert buffer.demos.actions[:recorded, 0, 0].max() > 0  # it does insert

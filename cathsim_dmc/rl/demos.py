@@ -131,10 +131,11 @@ def expert_transitions(env, episodes: int, seed: int = 0, policy=None, progress:
 
 
 def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200,
-                         progress: str | None = None) -> Transitions:
+                         progress: str | None = None, expert=None) -> Transitions:
     """Demonstrations from where the student goes: in each episode `student(observation)`
     drives for a random number of steps (0 to `max_student_steps`, drawn from `seed`), then
-    the scripted expert takes over to the end of the episode. The expert's part is returned.
+    the scripted expert (or `expert`, a `CenterlineExpert`) takes over to the end of the
+    episode. The expert's part is returned.
 
     These are DAgger's states (Ross et al., 2011) with the expert's own transitions: the
     states a student reaches with its own mistakes, which the expert's episodes from the
@@ -145,7 +146,7 @@ def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student
     """
     from cathsim_dmc.experts import CenterlineExpert
 
-    expert = CenterlineExpert()
+    expert = expert or CenterlineExpert()
     rng = np.random.default_rng(seed)
 
     def episode_policy():
@@ -176,16 +177,17 @@ class Labels:
         return len(self.actions)
 
 
-def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None) -> Labels:
+def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None,
+                  expert=None) -> Labels:
     """DAgger's data (Ross et al., 2011): `student(observation)` drives `episodes` episodes
-    (seeds `seed`, `seed + 1`, ...) and the scripted expert, asked at every step, labels
+    (seeds `seed`, `seed + 1`, ...) and the scripted expert (or `expert`), asked at every step, labels
     each state with the action it would take there. The expert follows the student's
     episode as if it were its own (its back-off and end-game counters run on), so a label
     is what the expert does from that state in that situation. `progress` labels a
     progress bar (None: none)."""
     from cathsim_dmc.experts import CenterlineExpert
 
-    expert = CenterlineExpert()
+    expert = expert or CenterlineExpert()
     observations, actions = [], []
 
     def act(obs, env, step):

@@ -16,6 +16,7 @@ import numpy as np
 
 from cathsim_dmc import run_files
 from cathsim_dmc.config import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
+from cathsim_dmc.policies import make_policy
 from cathsim_dmc.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
                                         checkpoint_interval, checkpoint_step, resume_checkpoint, save_checkpoint,
                                         save_model, write_policy_file)
@@ -268,7 +269,8 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int, show_progress
             transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
                                                seed=40_000 + 1000 * seed + 100 * round_index,
                                                max_student_steps=int(demos["takeover_max_student_steps"]),
-                                               progress=label(f"takeover round {round_index + 1}"))
+                                               progress=label(f"takeover round {round_index + 1}"),
+                                               expert=make_policy(demos["expert"]))
             add_transitions(model.replay_buffer, transitions)
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]) // 2,
                                   progress=label(f"round {round_index + 1}: re-training the actor"))
@@ -301,7 +303,8 @@ def _dagger_rounds(model, demos: dict, make_demo_env, seed: int, labels_path: Pa
             # Seeds apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
             labels = expert_labels(env, student, int(demos["dagger_episodes"]),
                                    seed=50_000 + 1000 * seed + 100 * round_index,
-                                   progress=label(f"DAgger round {round_index + 1}"))
+                                   progress=label(f"DAgger round {round_index + 1}"),
+                                   expert=make_policy(demos["expert"]))
             add_labels(model.replay_buffer, labels)
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]),
                                   progress=label(f"round {round_index + 1}: re-training the actor"))
@@ -360,6 +363,7 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
             else:
                 # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
                 transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed,
+                                                 policy=make_policy(demos["expert"]),
                                                  progress=label("recording demonstrations"))
         finally:
             env.close()
