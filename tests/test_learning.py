@@ -367,20 +367,23 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
                           20_000) is None
 
 
-@pytest.mark.parametrize("overrides, episodes, capacity, takeover_rounds", [
-    ([], 100, 20_000, 0),
-    (["task=lcca"], 300, 40_000, 3),  # the LCCA's own budget (conf/demos_for_task)
-    (["task=lcca", "demos=none"], 0, 20_000, 0),  # no demonstrations means none, whatever the target
-    (["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"], 50, 40_000, 0),  # the command line still wins
+@pytest.mark.parametrize("overrides, episodes, capacity, takeover_rounds, expert", [
+    ([], 100, 20_000, 0, "expert"),
+    (["task=lcca"], 300, 40_000, 3, "expert"),  # the LCCA's own budget (conf/demos_for_task)
+    (["task=lcca", "demos=none"], 0, 20_000, 0, "expert"),  # no demonstrations means none, whatever the target
+    (["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"], 50, 40_000, 0, "expert"),  # the command line wins
+    (["task=lcca", "obs=enn"], 300, 40_000, 3, "expert_steady"),  # and the ENN's demonstrator (conf/demos_for_obs)
+    (["obs=enn", "demos.expert=expert"], 100, 20_000, 0, "expert"),
 ])
-def test_the_demonstration_budget_follows_the_target(overrides, episodes, capacity, takeover_rounds):
+def test_the_demonstrations_follow_the_target_and_the_preset(overrides, episodes, capacity, takeover_rounds, expert):
     from hydra import compose, initialize_config_dir
 
     from cathsim_dmc.paths import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         demos = compose(config_name="train", overrides=overrides).demos
-    assert (demos.episodes, demos.capacity, demos.takeover_rounds) == (episodes, capacity, takeover_rounds)
+    assert (demos.episodes, demos.capacity, demos.takeover_rounds, demos.expert) == (episodes, capacity,
+                                                                                    takeover_rounds, expert)
 
 
 def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):

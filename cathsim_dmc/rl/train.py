@@ -372,8 +372,9 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
         if normalizer is not None:  # start the statistics from the expert's states, not from zero
             for key in normalizer.norm_obs_keys:
                 normalizer.obs_rms[key].update(transitions.observations[key])
-        log.info("demonstrations: %d expert episodes (%d reached the target), %d transitions, %.0f s",
-                 transitions.episodes, transitions.successes, len(transitions), time.perf_counter() - t0)
+        log.info("demonstrations: %d episodes of %s (%d reached the target), %d transitions, %.0f s",
+                 transitions.episodes, demos["path"] or demos["expert"], transitions.successes, len(transitions),
+                 time.perf_counter() - t0)
     if not pretrain and buffer.labels is not None and buffer.label_count() == 0 and labels_path is not None:
         if labels_path.is_file():  # a resumed run: its DAgger labels, for the cloning term
             log.info("expert labels: %d read from %s", load_labels(buffer, labels_path), labels_path)
