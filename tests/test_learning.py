@@ -372,8 +372,9 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
     (["task=lcca"], 300, 40_000, 3, "expert"),  # the LCCA's own budget (conf/demos_for_task)
     (["task=lcca", "demos=none"], 0, 20_000, 0, "expert"),  # no demonstrations means none, whatever the target
     (["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"], 50, 40_000, 0, "expert"),  # the command line wins
-    (["task=lcca", "obs=enn"], 300, 40_000, 3, "expert_steady"),  # and the ENN's demonstrator (conf/demos_for_obs)
-    (["obs=enn", "demos.expert=expert"], 100, 20_000, 0, "expert"),
+    (["obs=enn"], 100, 20_000, 3, "expert"),  # and the preset: the ENN's takeover rounds (conf/demos_for_obs)
+    (["task=lcca", "obs=enn"], 300, 40_000, 3, "expert"),
+    (["obs=enn", "demos.takeover_rounds=0", "demos.expert=expert_steady"], 100, 20_000, 0, "expert_steady"),
 ])
 def test_the_demonstrations_follow_the_target_and_the_preset(overrides, episodes, capacity, takeover_rounds, expert):
     from hydra import compose, initialize_config_dir
