@@ -464,8 +464,11 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
     """demos.expert=expert_steady: every demonstration, takeover and DAgger label comes from
     the steady expert, which never turns while the tip climbs the descending aorta (the
     default expert does turn there, at these starts)."""
+    from cathsim_dmc.config import DEMONSTRATORS
+    from cathsim_dmc.policies import BUILTIN_POLICIES
     from cathsim_dmc.rl import train as training
 
+    assert set(DEMONSTRATORS) <= set(BUILTIN_POLICIES)  # every name the schema accepts can be built
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
     demos = dict(episodes=2, expert="expert_steady", pretrain_actor_steps=5, takeover_rounds=1,
                  takeover_episodes=1, takeover_max_student_steps=5, dagger_rounds=1, dagger_episodes=1,
