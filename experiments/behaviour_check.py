@@ -12,7 +12,9 @@ What is recorded:
 * one 300-step `cathsim-train` run (seed 0, the default recipe with SAC updates from step
   100, a periodic evaluation every 100 steps and a 2-episode final report): every action
   and reward of every environment step in the process (the expert's demonstrations, the
-  training steps, the periodic and the final evaluations).
+  training steps, the periodic and the final evaluations);
+* one episode of each shipped navigator (`cathsim-eval policy=pretrained`, seed 0, on the
+  type2 aorta): every action and reward.
 """
 
 from __future__ import annotations
@@ -56,10 +58,10 @@ def expert_episodes() -> dict:
     return arrays
 
 
-def training_run() -> dict:
-    """Runs cathsim-train in this process; every CathSimEnv.step is recorded."""
+def _recorded_tool_run(main, argv: list) -> tuple:
+    """Runs a command-line tool's `main` in this process with `argv`; returns the action
+    and reward of every CathSimEnv.step it took."""
     from cathsim_dmc import gym as cs_gym
-    from cathsim_dmc.cli import train as cli_train
 
     actions, rewards = [], []
     original_step = cs_gym.CathSimEnv.step
@@ -71,16 +73,39 @@ def training_run() -> dict:
         return result
 
     cs_gym.CathSimEnv.step = recording_step
-    argv = sys.argv
+    saved_argv = sys.argv
     with tempfile.TemporaryDirectory() as run_dir:
-        sys.argv = ["cathsim-train", *TRAIN_OVERRIDES, f"hydra.run.dir={run_dir}"]
+        sys.argv = [*argv, f"hydra.run.dir={run_dir}"]
         try:
-            cli_train.main()
+            main()
         finally:
-            sys.argv = argv
+            sys.argv = saved_argv
             cs_gym.CathSimEnv.step = original_step
-    print(f"training run: {len(rewards)} environment steps, return {sum(rewards):.6f}", flush=True)
-    return {"train/actions": np.array(actions), "train/rewards": np.array(rewards, dtype=np.float64)}
+    return np.array(actions), np.array(rewards, dtype=np.float64)
+
+
+def training_run() -> dict:
+    """Runs cathsim-train in this process; every CathSimEnv.step is recorded."""
+    from cathsim_dmc.cli import train as cli_train
+
+    actions, rewards = _recorded_tool_run(cli_train.main, ["cathsim-train", *TRAIN_OVERRIDES])
+    print(f"training run: {len(rewards)} environment steps, return {rewards.sum():.6f}", flush=True)
+    return {"train/actions": actions, "train/rewards": rewards}
+
+
+def navigator_episodes() -> dict:
+    """One episode of each shipped navigator through cathsim-eval; every step recorded."""
+    from cathsim_dmc.cli import eval as cli_eval
+
+    arrays = {}
+    for target in ("bca", "lcca"):
+        argv = ["cathsim-eval", "policy=pretrained", f"task={target}", "aorta=type2", "episodes=1", "seed=0",
+                "video=false"]
+        actions, rewards = _recorded_tool_run(cli_eval.main, argv)
+        print(f"navigator {target}: {len(rewards)} steps, return {rewards.sum():.6f}", flush=True)
+        arrays[f"navigator/{target}/actions"] = actions
+        arrays[f"navigator/{target}/rewards"] = rewards
+    return arrays
 
 
 def compare(before: Path, after: Path) -> int:
@@ -104,7 +129,7 @@ def main() -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     record = sub.add_parser("record")
     record.add_argument("out", type=Path)
-    record.add_argument("--only", choices=("expert", "train"))
+    record.add_argument("--only", choices=("expert", "train", "navigator"))
     comp = sub.add_parser("compare")
     comp.add_argument("before", type=Path)
     comp.add_argument("after", type=Path)
@@ -116,6 +141,8 @@ def main() -> int:
         arrays.update(expert_episodes())
     if args.only in (None, "train"):
         arrays.update(training_run())
+    if args.only in (None, "navigator"):
+        arrays.update(navigator_episodes())
     np.savez(args.out, **arrays)
     return 0
 
