@@ -34,9 +34,9 @@ TRAIN_OVERRIDES = [
 
 
 def expert_episodes() -> dict:
-    from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.paths import available_aortas
-    from cathsim_dmc.policies import make_policy
+    from cathsim_dmc.suite.gym import CathSimEnv
+    from cathsim_dmc.core.shipped import available_aortas
+    from cathsim_dmc.control.policies import make_policy
 
     arrays = {}
     for aorta in available_aortas():
@@ -61,7 +61,7 @@ def expert_episodes() -> dict:
 def _recorded_tool_run(main, argv: list) -> tuple:
     """Runs a command-line tool's `main` in this process with `argv`; returns the action
     and reward of every CathSimEnv.step it took."""
-    from cathsim_dmc import gym as cs_gym
+    from cathsim_dmc.suite import gym as cs_gym
 
     actions, rewards = [], []
     original_step = cs_gym.CathSimEnv.step
@@ -86,7 +86,7 @@ def _recorded_tool_run(main, argv: list) -> tuple:
 
 def training_run() -> dict:
     """Runs cathsim-train in this process; every CathSimEnv.step is recorded."""
-    from cathsim_dmc.cli import train as cli_train
+    from cathsim_dmc.app.cli import train as cli_train
 
     actions, rewards = _recorded_tool_run(cli_train.main, ["cathsim-train", *TRAIN_OVERRIDES])
     print(f"training run: {len(rewards)} environment steps, return {rewards.sum():.6f}", flush=True)
@@ -95,7 +95,7 @@ def training_run() -> dict:
 
 def navigator_episodes() -> dict:
     """One episode of each shipped navigator through cathsim-eval; every step recorded."""
-    from cathsim_dmc.cli import eval as cli_eval
+    from cathsim_dmc.app.cli import eval as cli_eval
 
     arrays = {}
     for target in ("bca", "lcca"):

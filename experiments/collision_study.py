@@ -230,7 +230,7 @@ def load_env(name, folders, gym: bool = False, task: str = "bca"):
 
     with wall_context(name):
         if gym:
-            from cathsim_dmc.gym import CathSimEnv
+            from cathsim_dmc.suite.gym import CathSimEnv
 
             return CathSimEnv(task, aorta_of(name, folders), physics="fast")
         return tasks.load(task, aorta_of(name, folders), seed=0, physics="fast")
@@ -316,7 +316,7 @@ def probe(names, folders, args) -> list:
 
 
 def expert_runs(names, folders, episodes: int, seed: int, sdf_episodes: int) -> dict:
-    from cathsim_dmc.experts import CenterlineExpert
+    from cathsim_dmc.control.expert import CenterlineExpert
 
     out = {}
     for name in names:
@@ -367,7 +367,7 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     names = list(dict.fromkeys(args.walls))
 
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     folders, walls = {}, {}
     for name in names:

@@ -3,10 +3,10 @@
     python experiments/fidelity_gate.py                  # all six aortas, both targets, 20 seeds
     python experiments/fidelity_gate.py --aortas type1 --seeds 5 --json gate.json
 
-A solver setting (`cathsim_dmc.physics.PHYSICS_SETTINGS`) may become the default only
+A solver setting (`cathsim_dmc.sim.physics.PHYSICS_SETTINGS`) may become the default only
 if, measured in the same run as the others:
 
-* the wire's physical checks hold (`cathsim_dmc.fidelity`: cantilever against
+* the wire's physical checks hold (`cathsim_dmc.evaluation.fidelity`: cantilever against
   Euler-Bernoulli, tip rest angles, the 1 N push read by the wall, the tip following the
   carriage into the arch and back);
 * the scripted expert reaches at least as many targets over `--seeds` seeds on every
@@ -27,12 +27,12 @@ import time
 
 import numpy as np
 
-from cathsim_dmc import fidelity
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.metrics import polyline_length_m
-from cathsim_dmc.paths import available_aortas
-from cathsim_dmc.physics import PHYSICS_SETTINGS
-from cathsim_dmc.policies import make_policy
+from cathsim_dmc.evaluation import fidelity
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.evaluation.metrics import polyline_length_m
+from cathsim_dmc.core.shipped import available_aortas
+from cathsim_dmc.sim.physics import PHYSICS_SETTINGS
+from cathsim_dmc.control.policies import make_policy
 
 
 def wire_checks(setting: str) -> dict:

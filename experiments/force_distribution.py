@@ -23,7 +23,7 @@ so that a spike can be replayed. `--guidewire key=value` (and `--robot`, `--task
 entity parameters (values parsed as JSON: `--guidewire mass_scale=625`) to compare
 physics settings on the same seeds; `--json` writes everything for later comparison.
 
-Adversarial actions are `policy=adversarial` (`cathsim_dmc.policies.AdversarialPolicy`):
+Adversarial actions are `policy=adversarial` (`cathsim_dmc.control.policies.AdversarialPolicy`):
 bursts of 5-40 control steps, each one of: uniform random; bang-bang (each axis -1 or +1,
 held 1-5 steps); insert-and-rotate at full stroke ([1, +-1]); rapid reversals (insertion
 flips sign every step, rotation full).
@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cathsim_dmc import physics as cs_physics
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.policies import AdversarialPolicy, make_policy
+from cathsim_dmc.sim import physics as cs_physics
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.control.policies import AdversarialPolicy, make_policy
 
 PERCENTILES = (50, 99, 99.9, 100)
 

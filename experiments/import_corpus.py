@@ -1,4 +1,4 @@
-"""Import the segmentation-style corpus (tests/segmentation_corpus.py) with `cathsim-aorta import`,
+"""Import the segmentation-style corpus (cathsim_dmc/anatomy/corpus.py) with `cathsim-aorta import`,
 one command per mesh with the default options and the BCA and LCCA as sites (a CFD wall's cap
 files too), and print a Markdown table: triangles in, what the importer did, seconds, and the
 validation (holes, intrusion) with the anatomy against the type I arch it came from: the
@@ -21,14 +21,13 @@ import time
 import numpy as np
 import trimesh
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from cathsim_dmc.anatomy.corpus import VARIANTS, cap_files, make_variant
 
-from segmentation_corpus import VARIANTS, cap_files, make_variant  # noqa: E402
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 from cathsim_dmc.anatomy import load_asset  # noqa: E402
 from cathsim_dmc.anatomy.sdf import signed_distance  # noqa: E402
-from cathsim_dmc.model_check import validate_and_compile  # noqa: E402
+from cathsim_dmc.sim.model_check import validate_and_compile  # noqa: E402
 
 
 TARGETS = ("bca", "lcca")

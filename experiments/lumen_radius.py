@@ -100,7 +100,7 @@ def main(argv=None):
 
     rows = []
     if args.assets:
-        from cathsim_dmc.paths import resolve_asset
+        from cathsim_dmc.core.shipped import resolve_asset
         jobs = [(str(a), pathlib.Path(resolve_asset(a)), None) for a in args.assets]
     else:
         idx = args.indices if args.indices else range(args.pool_size)

@@ -14,7 +14,7 @@ past the lumen surface and the mean total wall contact force over the steps (bot
 after each step, in an untimed run). Times are ratios only: absolute speeds depend on the
 machine and its load.
 
-Variants: `accurate`, `fast` and `fast_field` (`cathsim_dmc.physics.PHYSICS_SETTINGS`,
+Variants: `accurate`, `fast` and `fast_field` (`cathsim_dmc.sim.physics.PHYSICS_SETTINGS`,
 compiled through `tasks.load`; `fast_field` has the distance-field wall), `accurate` with one of fast's options (`pgs10`: PGS at 10
 iterations, `dense`: dense Jacobian, `noslip0`: no noslip, `sleep`: sleep on), and
 `wall_frame`: accurate with the wall in the aorta's attachment body, as before
@@ -31,7 +31,7 @@ import time
 import mujoco
 import numpy as np
 
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc import tasks
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # time, qpos, qvel, act, warm start, controls, ...

@@ -5,7 +5,7 @@
 
 Samples points within the contact range of the lumen surface (from 1.5 mm inside to
 2.5 mm outside, along the faces' normals from random points on random triangles), reads
-the sampled field there (`cathsim_dmc.wall_field.distance`, as the contact test reads it)
+the sampled field there (`cathsim_dmc.sim.wall_field.distance`, as the contact test reads it)
 and compares it with the exact signed distance to the same triangles (trimesh). Prints
 the error's percentiles, how many points read no value, and the field's size and build
 time.
@@ -19,10 +19,10 @@ import time
 import numpy as np
 import trimesh
 
-from cathsim_dmc import wall_field
+from cathsim_dmc.sim import wall_field
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.validate import open_end_plane
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.core.shipped import resolve_asset
 
 
 def main(argv=None) -> None:

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
     parser.add_argument("--check", action="store_true",
                         help="build into a temporary folder and compare with the assets under --out")
     parser.add_argument("--validate", action="store_true",
-                        help="run cathsim_dmc.model_check.validate_and_compile on each build")
+                        help="run cathsim_dmc.sim.model_check.validate_and_compile on each build")
     args = parser.parse_args(argv)
     names = args.names or list(PRESETS)
     unknown = [n for n in names if n not in PRESETS]
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
             print(f"{'':<15} {verdict} {args.out / name}")
             status |= 0 if same else 1
         if args.validate:
-            from cathsim_dmc.model_check import validate_and_compile
+            from cathsim_dmc.sim.model_check import validate_and_compile
 
             report = validate_and_compile(r.path)
             print(f"{'':<15} {report.summary()}")

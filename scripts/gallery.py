@@ -30,10 +30,10 @@ from dm_control import mjcf  # noqa: E402
 from dm_control.mujoco.engine import Camera  # noqa: E402
 from dm_control.mujoco.wrapper.core import MjvOption  # noqa: E402
 
-from cathsim_dmc import geom_groups  # noqa: E402
-from cathsim_dmc.arena import OperatingArena, top_camera_matrix  # noqa: E402
+from cathsim_dmc.sim import geom_groups  # noqa: E402
+from cathsim_dmc.sim.arena import OperatingArena, top_camera_matrix  # noqa: E402
 from cathsim_dmc.entities import Aorta  # noqa: E402
-from cathsim_dmc.paths import available_aortas  # noqa: E402
+from cathsim_dmc.core.shipped import available_aortas  # noqa: E402
 
 PIXELS = 420
 SITE_COLOURS = {"bca": "#1f77b4", "lcca": "#2ca02c", "lsa": "#ff7f0e"}
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
         print(f"error: unknown aorta {', '.join(unknown)}; valid choices: {', '.join(shipped)}", file=sys.stderr)
         return 2
     from cathsim_dmc.anatomy import load_asset
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     # One frame for all, so the variants are drawn at the same scale.
     bounds = np.array([load_asset(resolve_asset(n)).bounds for n in names])

@@ -17,7 +17,7 @@ exists); `--specialist` runs the default recipe on type I into ROOT/runs/<task>/
 - anatomies: the held-out pool (`pool_seed` 1000: 100 arches of types I-III with the
   published obliquity distribution, each visited once), the same pool with the roadmap's
   tracking and registration noise (navigators only), the nine shipped aortas and the
-  segmentation corpus of the tests (tests/segmentation_corpus.py), imported with
+  segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
   `cathsim-aorta import` and default options.
 
 Each (policy, anatomy) gets a cathsim-eval style report in
@@ -83,8 +83,7 @@ def train(root: Path, task: str, seed: int, specialist: bool, overrides: list) -
 
 def import_corpus(root: Path) -> dict:
     """name -> asset folder of each segmentation-corpus mesh, imported with default options."""
-    sys.path.insert(0, str(ROOT / "tests"))
-    from segmentation_corpus import make_variant
+    from cathsim_dmc.anatomy.corpus import make_variant
 
     assets = {}
     for name in CORPUS:
@@ -104,7 +103,7 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     """name -> what make_policy takes, for every policy that exists (a navigator run once it
     has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
-    from cathsim_dmc.pretrained import shipped_targets
+    from cathsim_dmc.learning.pretrained import shipped_targets
 
     if task in shipped_targets():
         found["pretrained"] = "pretrained"
@@ -155,10 +154,10 @@ PRESET_CARD = {
 
 def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
              unfinished: bool = False, only_anatomies: list | None = None) -> None:
-    from cathsim_dmc.agents import CheckpointPolicy, make_policy
-    from cathsim_dmc.evaluation import evaluate_policy
-    from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.observables import OBSERVATION_PRESETS
+    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.evaluation.rollouts import evaluate_policy
+    from cathsim_dmc.suite.gym import CathSimEnv
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
     anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
                  NOISY_NAME: ("random", HELDOUT, episodes)}
@@ -317,7 +316,7 @@ def _failures_near_target(scores: Path, within_m: float = 0.0085) -> tuple:
 def ship(root: Path, task: str) -> Path:
     """Export the navigator seed that scores best on the tuning pool (never the held-out one)
     as the shipped `policy=pretrained` for `task`, with its model card."""
-    from cathsim_dmc.pretrained import export_actor
+    from cathsim_dmc.learning.pretrained import export_actor
 
     scores = root / "scores" / task
     candidates = {}
@@ -368,7 +367,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
 {task.upper()} of aortic arches it has never seen (docs/training.md#unseen-anatomy).
 
     cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
-    python -c "from cathsim_dmc.pretrained import load_pretrained; policy = load_pretrained('{task}')"
+    python -c "from cathsim_dmc.learning.pretrained import load_pretrained; policy = load_pretrained('{task}')"
 
 {preset}
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.

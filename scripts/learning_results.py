@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from cathsim_dmc.rl.checkpoints import checkpoint_step
+from cathsim_dmc.learning.rl.checkpoints import checkpoint_step
 
 DEMOS = ["demos=expert"]
 # demos=expert is the training default: the variants without demonstrations must say so.
@@ -77,7 +77,7 @@ def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps
                 f"hydra.run.dir={folder}"]
     print(f"training {variant} {task} seed {seed}: {' '.join(args)}", flush=True)
     t0 = time.time()
-    subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], check=True)
+    subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], check=True)
     print(f"finished in {time.time() - t0:.0f} s", flush=True)
 
 

@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 
 import cathsim_dmc  # noqa: F401  (GL backend before dm_control)
-from cathsim_dmc import raster, tasks
-from cathsim_dmc.observables import TopView
+from cathsim_dmc.sim import raster
+from cathsim_dmc import tasks
+from cathsim_dmc.sim.render import TopView
 
 
 def main():

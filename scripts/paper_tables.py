@@ -405,7 +405,7 @@ def reselect(plan: Plan, only: list | None) -> int:
     trainer.tie_break_episodes existed). The training is not repeated: `cathsim-train
     resume=<cell>` of a finished run does only that. cell.json keeps the training's commit
     and cost, and gains `selected` (commit, wall seconds, date)."""
-    from cathsim_dmc.rl.callbacks import has_unbroken_tie
+    from cathsim_dmc.learning.rl.callbacks import has_unbroken_tie
 
     failed = 0
     for cell in plan.cells:
@@ -439,7 +439,7 @@ def _now() -> str:
 
 def minutes_to_finish(plan: Plan, cell: Cell) -> float:
     """The cell's estimate, less the share of its training steps a killed attempt has done."""
-    from cathsim_dmc.rl.checkpoints import read_evaluations
+    from cathsim_dmc.learning.rl.checkpoints import read_evaluations
 
     folder = plan.folder(cell)
     if cell.tool != "train" or not (folder / "checkpoints" / "last.zip").is_file():
@@ -556,8 +556,8 @@ def open_plan(root: Path, budget: str | None, record: Path | None = None) -> Pla
 def _result_from(folder: Path) -> dict:
     """A finished cell's numbers, as the record keeps them: the cell's info, its final report's
     summary and per-episode metrics, its evaluation curve, and the force report."""
-    from cathsim_dmc.metrics import METRIC_COLUMNS
-    from cathsim_dmc.rl.checkpoints import read_evaluations
+    from cathsim_dmc.evaluation.metrics import METRIC_COLUMNS
+    from cathsim_dmc.learning.rl.checkpoints import read_evaluations
 
     result = {"info": json.loads((folder / CELL_FILE).read_text())}
     for path in (folder / "eval" / "metrics.json", folder / "metrics.json"):
@@ -607,7 +607,7 @@ def _finished(plan: Plan, name: str) -> dict | None:
 
 def _pooled(reports: list) -> dict:
     """{metric: (mean, std)} over every episode of the reports."""
-    from cathsim_dmc.metrics import METRIC_COLUMNS
+    from cathsim_dmc.evaluation.metrics import METRIC_COLUMNS
 
     episodes = [e for r in reports for e in r["per_episode"]]
     return {k: (statistics.fmean(e[k] for e in episodes), statistics.pstdev(e[k] for e in episodes))
@@ -615,13 +615,13 @@ def _pooled(reports: list) -> dict:
 
 
 def _metric_cells(pooled: dict) -> list:
-    from cathsim_dmc.metrics import METRIC_COLUMNS
+    from cathsim_dmc.evaluation.metrics import METRIC_COLUMNS
 
     return [f"{fmt.format(pooled[k][0])} ± {fmt.format(pooled[k][1])}" for k, (_, fmt) in METRIC_COLUMNS.items()]
 
 
 def _metric_header() -> list:
-    from cathsim_dmc.metrics import METRIC_COLUMNS
+    from cathsim_dmc.evaluation.metrics import METRIC_COLUMNS
 
     return [h for h, _ in METRIC_COLUMNS.values()]
 
@@ -673,7 +673,7 @@ def main_table(plan: Plan) -> str:
 
 def _evaluations(plan: Plan, name: str) -> list:
     """A cell's evaluation curve: live from ROOT (a running cell's too), else from the record."""
-    from cathsim_dmc.rl.checkpoints import read_evaluations
+    from cathsim_dmc.learning.rl.checkpoints import read_evaluations
 
     live = read_evaluations(plan.root / name)
     return live or (plan.recorded().get(name) or {}).get("evaluations", [])

@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
-from cathsim_dmc.physics import DEFAULT_PHYSICS, physics_settings
-from cathsim_dmc.observables import OBSERVATION_PRESETS, observation_settings
-from cathsim_dmc.registry import CUSTOM_AORTA, TARGETS, aorta_choices, all_tasks
+from cathsim_dmc.sim.physics import DEFAULT_PHYSICS, physics_settings
+from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, observation_settings
+from cathsim_dmc.core.registry import CUSTOM_AORTA, TARGETS, aorta_choices, all_tasks
 from cathsim_dmc.tasks.environment import NavigationEnvironment
 from cathsim_dmc.tasks.navigate import Navigate, check_options
 from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment

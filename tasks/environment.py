@@ -7,8 +7,8 @@ import numpy as np
 from dm_control import composer
 from dm_control.mujoco import wrapper
 
-from cathsim_dmc import model_cache
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import model_cache
+from cathsim_dmc.sim import physics as cs_physics
 
 
 class NavigationEnvironment(composer.Environment):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 

@@ -8,21 +8,22 @@ import numpy as np
 import dm_env.specs
 from dm_control import composer
 
-from cathsim_dmc.checks import check_number
-from cathsim_dmc.config import REMOVED_TASK_ARGUMENTS, TaskConfig
+from cathsim_dmc.core.checks import check_number
+from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS, TaskConfig
 from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Containment
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterDrive, catheter_named
-from cathsim_dmc.observables import OBSERVATION_PRESETS, ObservationSettings
+from cathsim_dmc.sim.render import ObservationSettings
+from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
 from cathsim_dmc.tasks.rewards import SUCCESS_REWARD, NavigationReward
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
-# The task's defaults are the training config's (cathsim_dmc.config.TaskConfig), defined there once.
+# The task's defaults are the training config's (cathsim_dmc.app.train_schema.TaskConfig), defined there once.
 MAX_STEPS = TaskConfig.max_steps  # the paper's episode limit
 SUCCESS_RADIUS_M = TaskConfig.delta_m  # the paper's delta
 # The largest success radius `check_options` accepts. Every shipped target lies 17.5-18.5 cm
@@ -37,7 +38,7 @@ MAX_START_INSERTION_JITTER_M = 0.05
 
 def check_removed_arguments(arguments) -> None:
     """ValueError in one line for an argument of `arguments` (names) that was removed
-    (`cathsim_dmc.config.REMOVED_TASK_ARGUMENTS`)."""
+    (`cathsim_dmc.app.train_schema.REMOVED_TASK_ARGUMENTS`)."""
     for name in arguments:
         if name in REMOVED_TASK_ARGUMENTS:
             raise ValueError(f"{name} was {REMOVED_TASK_ARGUMENTS[name]}; leave it out")
@@ -107,11 +108,11 @@ class Navigate(composer.Task):
     terms are in `cathsim_dmc.tasks.rewards`): `reward="geodesic"` measures the distance
     along the vessel instead of the straight line; `progress_weight` adds that weight
     times the step's progress towards the target in units of one full-speed insertion
-    step (potential-style shaping). The defaults are `cathsim_dmc.config.TaskConfig`'s.
+    step (potential-style shaping). The defaults are `cathsim_dmc.app.train_schema.TaskConfig`'s.
 
     Physics: `physics="fast"` (the default: PGS capped at 10 iterations, dense Jacobian,
     noslip off, sleep on; about twice the speed of `accurate` in wall contact) or `"accurate"`
-    (Newton), the solver settings of `cathsim_dmc.physics.PHYSICS_SETTINGS`.
+    (Newton), the solver settings of `cathsim_dmc.sim.physics.PHYSICS_SETTINGS`.
 
     Access (`cathsim_dmc.tasks.scene`): the robot's introducer sheath seals the aorta's
     open lower end and its tip lies `robot.sheath_depth_m` (3 mm) inside the lumen. The
@@ -338,7 +339,7 @@ class Navigate(composer.Task):
     @property
     def mean_wall_force_n(self) -> float:
         """The last control step's wall force, averaged over its physics steps (after a
-        reset: the start state's), newtons (`cathsim_dmc.physics.ControlStepForce`)."""
+        reset: the start state's), newtons (`cathsim_dmc.sim.physics.ControlStepForce`)."""
         return self._step_force.mean_n
 
     def get_reward(self, physics):

@@ -2,7 +2,7 @@
 view's images, and the extra signals a task can enable one by one.
 
 Which of them an environment returns is an observation preset's choice
-(`cathsim_dmc.observables.OBSERVATION_PRESETS`) plus `extra_observations`.
+(`cathsim_dmc.tasks.presets.OBSERVATION_PRESETS`) plus `extra_observations`.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control.composer.observation import observable
 
-from cathsim_dmc.config import EXTRA_OBSERVATIONS  # noqa: F401  (the names' one home; public here too)
-from cathsim_dmc.observables import ObservationSettings, TopView, image_noise
+from cathsim_dmc.app.train_schema import EXTRA_OBSERVATIONS  # noqa: F401  (the names' one home; public here too)
+from cathsim_dmc.sim.render import ObservationSettings, TopView, image_noise
 from cathsim_dmc.tasks.roadmap import RoadmapTracker
 
 

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from cathsim_dmc.registry import RANDOM_AORTA  # noqa: F401  (the name's one home; public here too)
+from cathsim_dmc.core.registry import RANDOM_AORTA  # noqa: F401  (the name's one home; public here too)
 
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
 DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale", "obliquity_deg",
@@ -35,7 +35,7 @@ def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] |
     (so a larger pool keeps the smaller one's anatomies)."""
     from cathsim_dmc.anatomy import generated_asset
     from cathsim_dmc.anatomy.generate import sample_arch_params
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     if assets:
         return [resolve_asset(str(a)) for a in assets]

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from cathsim_dmc.config import TaskConfig
+from cathsim_dmc.app.train_schema import TaskConfig
 
 SUCCESS_REWARD = TaskConfig.success_reward  # defined once, in the training config's schema
 

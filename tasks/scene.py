@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
-from cathsim_dmc.arena import OperatingArena
+from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
 
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)

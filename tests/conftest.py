@@ -6,8 +6,8 @@ import pytest
 import cathsim_dmc  # noqa: F401,E402
 
 # Composing conf/ needs the config schemas in Hydra's ConfigStore, as the tools register them
-# before they compose (cathsim_dmc/cli/_common.py); tests compose conf/ directly too.
-from cathsim_dmc.config_tools import register_schemas  # noqa: E402
+# before they compose (cathsim_dmc/app/cli/_common.py); tests compose conf/ directly too.
+from cathsim_dmc.app.tool_schemas import register_schemas  # noqa: E402
 
 register_schemas()
 

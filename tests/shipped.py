@@ -6,7 +6,7 @@ arch), so in the default suite they would repeat the plain arch's test at its co
 import pytest
 
 from cathsim_dmc import tasks
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.core.shipped import available_aortas
 
 
 def _slow_if_oblique(aorta: str, *values):

@@ -2,7 +2,7 @@
 
 Geometry checks run on the committed assets (what users load): the full
 validation (`cathsim_dmc.anatomy.validate`: lumen open for the wire, sites inside,
-no intrusion, continuous wall; `cathsim_dmc.model_check`: MuJoCo compiles) for each, plus the variant
+no intrusion, continuous wall; `cathsim_dmc.sim.model_check`: MuJoCo compiles) for each, plus the variant
 properties (arch type class, tortuosity, aneurysm size, bovine origin). The
 determinism check rebuilds a coarse variant twice. Run with `-s` to see the
 measured numbers.
@@ -25,8 +25,8 @@ from cathsim_dmc.anatomy.lumen import MESHER_VERSION
 from cathsim_dmc.anatomy.sdf import signed_distance
 from cathsim_dmc.anatomy.triangles import triangle_quality
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, HullSet, cap_faces, validate_asset
-from cathsim_dmc.model_check import validate_and_compile
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.sim.model_check import validate_and_compile
+from cathsim_dmc.core.shipped import available_aortas
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets"

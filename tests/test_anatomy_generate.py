@@ -18,7 +18,7 @@ import pytest
 from cathsim_dmc.anatomy import (ARCH_TYPE_RATIO_RANGE, PRESETS, ArchParams, arch_params, build_arch, cache_root,
                                  generated_asset, load_asset, params_hash, sample_arch_params)
 from cathsim_dmc.anatomy.lumen import MESHER_VERSION
-from cathsim_dmc.model_check import validate_and_compile
+from cathsim_dmc.sim.model_check import validate_and_compile
 
 COARSE = dict(edge_length_m=0.005, sdf_spacing_m=0.002)
 

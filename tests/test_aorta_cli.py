@@ -14,14 +14,14 @@ import trimesh
 
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M
-from cathsim_dmc.model_check import validate_and_compile
+from cathsim_dmc.sim.model_check import validate_and_compile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = pathlib.Path(sys.executable).with_name("cathsim-aorta")
 
 
 def run(*args, env=None, timeout=600):
-    cmd = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "cathsim_dmc.cli.aorta"]
+    cmd = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "cathsim_dmc.app.cli.aorta"]
     full_env = dict(os.environ, OMP_NUM_THREADS="1", **(env or {}))
     return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True, timeout=timeout,
                           env=full_env, cwd=ROOT)

@@ -17,7 +17,7 @@ HYDRA_FILES = {".hydra"}
 
 
 def _tool(tool: str, args, cwd):
-    return subprocess.run([sys.executable, "-m", f"cathsim_dmc.cli.{tool}", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", f"cathsim_dmc.app.cli.{tool}", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=900)
 
 
@@ -98,7 +98,7 @@ CLI_CASES = [
     ("eval", ["seed=[1"], "seed=[1", True),
     ("bench", ["hydra/launcher=nope"], "nope", True),
     ("bench", ["physics_settings=[accurate,quick]"], "quick", True),
-    # every tool's values are typed and ranged before any work (cathsim_dmc/config_tools.py)
+    # every tool's values are typed and ranged before any work (cathsim_dmc/app/tool_schemas.py)
     ("eval", ["video=maybe"], "video='maybe'", True),
     ("eval", ["save_observations=maybe"], "save_observations='maybe'", True),
     ("eval", ["video_format=mov"], "video_format='mov'; choose one of ['gif', 'mp4']", True),
@@ -143,8 +143,8 @@ def internal_run(tmp_path_factory):
     """A run folder as cathsim-train leaves it: an (untrained) SAC agent on obs=internal."""
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.rl.checkpoints import FINAL_MODEL, write_policy_file
+    from cathsim_dmc.suite.gym import CathSimEnv
+    from cathsim_dmc.learning.rl.checkpoints import FINAL_MODEL, write_policy_file
 
     run = tmp_path_factory.mktemp("internal_run")
     env = CathSimEnv("bca", "type1", obs="internal", max_steps=5)
@@ -180,7 +180,7 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
 def test_a_refused_command_line_loads_no_simulator_or_network(tool, arg, tmp_path):
     # The choices and ranges are checked from conf/ alone, so a typo costs about a second,
     # not the import of MuJoCo, SciPy and torch.
-    code = (f"import sys\nsys.argv = ['cathsim-{tool}', {arg!r}]\nfrom cathsim_dmc.cli.{tool} import main\n"
+    code = (f"import sys\nsys.argv = ['cathsim-{tool}', {arg!r}]\nfrom cathsim_dmc.app.cli.{tool} import main\n"
             "try:\n    main()\nexcept SystemExit as exit:\n    print(exit.code)\n"
             "print(sorted(m for m in ('mujoco', 'dm_control', 'scipy', 'torch') if m in sys.modules))")
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -198,21 +198,21 @@ def test_a_bad_task_value_is_refused_before_hydra_makes_the_run_folder(tool, arg
     assert not out.exists()
 
 def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
-    from cathsim_dmc.observables import OBSERVATION_PRESETS
-    from cathsim_dmc.registry import config_choices
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
+    from cathsim_dmc.core.registry import config_choices
 
     assert config_choices("obs") == sorted(OBSERVATION_PRESETS)
 
 
 def _corrupt_manifest_collect(tmp_path):
-    from cathsim_dmc.supervised.collect import collect
+    from cathsim_dmc.learning.collect import collect
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     collect(tmp_path / "data", "bca", "type1", "forward", episodes=1, episodes_per_shard=1, seed=0)
 
 
 def _corrupt_manifest_read(tmp_path):
-    from cathsim_dmc.supervised.data import expand_paths
+    from cathsim_dmc.learning.datasets import expand_paths
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     expand_paths(tmp_path / "data")
@@ -231,13 +231,13 @@ def _load_random(**kwargs):
 
 
 def _gym_env(**kwargs):
-    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     return lambda tmp_path: CathSimEnv(**kwargs)
 
 
 def _step_before_reset(tmp_path):
-    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     env = CathSimEnv("bca", "type1", max_steps=2)
     try:
@@ -247,7 +247,7 @@ def _step_before_reset(tmp_path):
 
 
 def _step_after_the_end(tmp_path):
-    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     env = CathSimEnv("bca", "type1", max_steps=1)
     try:
@@ -260,9 +260,9 @@ def _step_after_the_end(tmp_path):
 
 
 def _evaluate_zero_episodes(tmp_path):
-    from cathsim_dmc.evaluation import evaluate_policy
-    from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.policies import ForwardPolicy
+    from cathsim_dmc.evaluation.rollouts import evaluate_policy
+    from cathsim_dmc.suite.gym import CathSimEnv
+    from cathsim_dmc.control.policies import ForwardPolicy
 
     env = CathSimEnv("bca", "type1", max_steps=2)
     try:
@@ -274,7 +274,7 @@ def _evaluate_zero_episodes(tmp_path):
 
 def _train(algo=None, trainer=None):
     def run(tmp_path):
-        from cathsim_dmc.rl.train import check_training
+        from cathsim_dmc.learning.rl.train import check_training
 
         check_training({"learning_rate": 3e-4, "batch_size": 16, "buffer_size": 100, "learning_starts": 0,
                         "gamma": 0.99, **(algo or {})},
@@ -298,7 +298,7 @@ def _gym_make(**kwargs):
     def make(tmp_path):
         import gymnasium
 
-        import cathsim_dmc.gym  # noqa: F401  (registers the ids)
+        import cathsim_dmc.suite.gym  # noqa: F401  (registers the ids)
 
         gymnasium.make("cathsim_dmc/bca-type1-v0", **kwargs)
 
@@ -310,7 +310,7 @@ def _site_outside_the_lumen(tmp_path):
     import shutil
 
     from cathsim_dmc import tasks
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     folder = tmp_path / "far_site"
     shutil.copytree(resolve_asset("type1"), folder)
@@ -329,8 +329,8 @@ def _random_pool_order(tmp_path):
 
 def _csv_trajectory(reader):
     def read(tmp_path):
-        from cathsim_dmc.supervised.data import read_keys
-        from cathsim_dmc.trajectory import load_trajectories
+        from cathsim_dmc.learning.datasets import read_keys
+        from cathsim_dmc.evaluation.trajectory import load_trajectories
 
         _write(tmp_path / "forces.csv", "step,force_n\n0,0.1\n")
         if reader == "load_trajectories":
@@ -411,7 +411,7 @@ def test_api(call, error, expected, tmp_path):
 
 def test_continuing_a_dataset_records_a_truncated_shard_again(tmp_path):
     # A collection killed while writing a shard used to make the next run fail with BadZipFile.
-    from cathsim_dmc.supervised.collect import SHARD_FORMAT, collect
+    from cathsim_dmc.learning.collect import SHARD_FORMAT, collect
 
     settings = dict(task="bca", aorta="type1", policy="forward", episodes_per_shard=1, seed=0,
                     task_options={"max_steps": 3}, show_progress=False)
@@ -425,7 +425,7 @@ def test_continuing_a_dataset_records_a_truncated_shard_again(tmp_path):
 
 def test_a_training_size_beyond_the_data_is_labelled_with_the_samples_it_has():
     # force.sizes=[1000000] on a small dataset used to show "1,000,000 samples" while training on all there is.
-    from cathsim_dmc.supervised.force import ForceConfig, markdown, train_force_sizes
+    from cathsim_dmc.learning.supervised.force import ForceConfig, markdown, train_force_sizes
 
     rng = np.random.default_rng(0)
     episodes = np.repeat(np.arange(6), 4)
@@ -440,7 +440,7 @@ def test_a_training_size_beyond_the_data_is_labelled_with_the_samples_it_has():
 
 
 def test_a_generated_arch_too_large_is_refused_before_any_build(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.aorta", "build", "arch_width_m=5",
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.aorta", "build", "arch_width_m=5",
                              f"out={tmp_path / 'arch'}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and "arch_width_m=5.0 m is larger" in lines[0], result.stderr

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc.supervised.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
+from cathsim_dmc.learning.supervised.bc import BCConfig, BCNetwork, bc_loss, load_bc_policy, save_bc, train_bc
 
 
 def _demonstrations(episodes=4, steps=8, seed=0):
@@ -77,7 +77,7 @@ def test_distillation_regresses_z():
 
 
 def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
-    from cathsim_dmc.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
 
     net = BCNetwork()
     with torch.no_grad():
@@ -92,15 +92,15 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
     assert action.tolist() == [1.0, -0.25]
     assert load_bc_policy(tmp_path / "run" / "bc_policy.pt").image_key == "pixels"
     # The scripted policies' module loads no checkpoint: a path there says where to go.
-    from cathsim_dmc import policies
+    from cathsim_dmc.control import policies
 
-    with pytest.raises(ValueError, match="cathsim_dmc.agents.make_policy"):
+    with pytest.raises(ValueError, match="cathsim_dmc.learning.agents.make_policy"):
         policies.make_policy(str(tmp_path / "run"))
     assert isinstance(make_policy("forward"), policies.ForwardPolicy)
 
 
 def test_stacked_frames_are_the_images_before_in_the_same_episode():
-    from cathsim_dmc.supervised.data import stack_frames
+    from cathsim_dmc.learning.datasets import stack_frames
 
     images = np.arange(7, dtype=np.uint8).reshape(7, 1, 1, 1) * np.ones((1, 1, 2, 2), np.uint8)
     episode = np.array([0, 0, 0, 0, 1, 1, 1])
@@ -117,7 +117,7 @@ def test_stacked_frames_are_the_images_before_in_the_same_episode():
 
 
 def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
-    from cathsim_dmc.agents import make_policy
+    from cathsim_dmc.learning.agents import make_policy
 
     class Episode:  # what CheckpointPolicy reads of an environment: the step count
         def __init__(self):
@@ -143,12 +143,12 @@ def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
 
 
 def _bc(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bc", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.bc", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=900)
 
 
 def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
-    from cathsim_dmc.supervised.collect import collect
+    from cathsim_dmc.learning.collect import collect
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=3, episodes_per_shard=3, seed=0,
             task_options={"max_steps": 10}, show_progress=False)
@@ -158,7 +158,7 @@ def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
     history = json.loads((tmp_path / "bc" / "history.json").read_text())
     assert len(history["epochs"]) == 3 and history["val_samples"] == 10
     assert json.loads((tmp_path / "bc" / "eval" / "metrics.json").read_text())["policy"] == "bc-pixels"
-    ev = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={tmp_path}/bc", "episodes=1",
+    ev = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", f"policy={tmp_path}/bc", "episodes=1",
                          "task.max_steps=4", "video=false", f"hydra.run.dir={tmp_path}/eval"],
                         cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert ev.returncode == 0, ev.stderr[-2000:]
@@ -174,7 +174,7 @@ def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
     (None, ["bc.image_key=depth"], "pixels"),
 ])
 def test_bad_data_is_one_line_and_exit_2(tmp_path, make, args, expected):
-    from cathsim_dmc.trajectory import TrajectoryRecorder
+    from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
 
     data = tmp_path / "data"
     data.mkdir()

@@ -5,12 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from cathsim_dmc import fidelity, tasks
+from cathsim_dmc.evaluation import fidelity
+
+from cathsim_dmc import tasks
 from cathsim_dmc.entities import Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterOverWire
 from cathsim_dmc.entities.guidewire import second_moment_of_area
-from cathsim_dmc.experts import CenterlineExpert
-from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.control.expert import CenterlineExpert
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 def test_a_covered_cantilever_bends_as_the_wire_and_the_catheter_together():
@@ -153,7 +155,7 @@ def test_the_expert_leaves_the_catheter_parked_where_the_wire_alone_will_do():
 
 
 def test_the_built_in_wire_policies_leave_the_catheter_parked():
-    from cathsim_dmc.policies import BUILTIN_POLICIES
+    from cathsim_dmc.control.policies import BUILTIN_POLICIES
 
     env = CathSimEnv("bca", "type1", "internal", catheter="angled_5f")
     observation, _ = env.reset(seed=0)

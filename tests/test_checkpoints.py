@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc import run_files
-from cathsim_dmc.rl import checkpoints
-from cathsim_dmc.rl import train as training
+from cathsim_dmc.core import run_files
+from cathsim_dmc.learning.rl import checkpoints
+from cathsim_dmc.learning.rl import train as training
 
 STEPS = 40  # the tiny run below; a resumed run adds as many again
 
@@ -28,7 +28,7 @@ def _configs(**trainer):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
@@ -63,7 +63,7 @@ def _same_weights(a: dict, b: dict) -> bool:
 def test_resume_continues_from_the_saved_weights_buffer_and_step_count(tmp_path):
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cathsim_dmc.rl.sacfd import SACfD
+    from cathsim_dmc.learning.rl.sacfd import SACfD
 
     first = _train(tmp_path, STEPS)
     ckpt = tmp_path / checkpoints.CHECKPOINT_DIR
@@ -175,7 +175,7 @@ def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
         checkpoints.resume_checkpoint(ckpt)
     # An older run's single replay_buffer.pkl is checked by its contents instead.
     (ckpt / "replay_buffer_step_20.pkl").rename(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
-    from cathsim_dmc.rl.sacfd import SACfD
+    from cathsim_dmc.learning.rl.sacfd import SACfD
 
     model = SACfD.load(ckpt / checkpoints.LAST_CHECKPOINT)
     model.load_replay_buffer(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
@@ -202,7 +202,7 @@ def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
     them (the actor learns at the full rate from the first step) and they are not saved again."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cathsim_dmc.rl.sacfd import SACfD
+    from cathsim_dmc.learning.rl.sacfd import SACfD
 
     _train(tmp_path, STEPS)
     last = tmp_path / checkpoints.CHECKPOINT_DIR / checkpoints.LAST_CHECKPOINT
@@ -229,7 +229,7 @@ def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
 def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(tmp_path):
     """A policy.json written before insertion_limit_margin_m was removed: the agent, trained
     with the limit on, would be scored on another task; left at None (off) it loads."""
-    from cathsim_dmc.agents import make_policy
+    from cathsim_dmc.learning.agents import make_policy
 
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 3})
     algo, _ = _configs()
@@ -254,8 +254,8 @@ def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(t
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):
-    from cathsim_dmc.supervised.data import expand_paths
-    from cathsim_dmc.trajectory import save_npz
+    from cathsim_dmc.learning.datasets import expand_paths
+    from cathsim_dmc.evaluation.trajectory import save_npz
 
     save_npz(tmp_path / "shard_00000.npz", {"x": np.zeros(3)})
     for stale in ("shard_00001.npz.tmp.npz", ".shard_00002.tmp.npz"):  # the old and the new temporary names
@@ -273,7 +273,7 @@ def test_cathsim_train_killed_at_random_moments_resumes_each_time(tmp_path):
     args = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
             "trainer.checkpoint_every=25", "trainer.save_replay_buffer=true", "trainer.eval_every=0",
             "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
-    command = [sys.executable, "-m", "cathsim_dmc.cli.train"]
+    command = [sys.executable, "-m", "cathsim_dmc.app.cli.train"]
     rng = np.random.default_rng(0)
     process = subprocess.Popen([*command, *args, "trainer.total_timesteps=400", f"hydra.run.dir={run}"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

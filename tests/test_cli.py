@@ -8,11 +8,11 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from cathsim_dmc.trajectory import load_trajectories
+from cathsim_dmc.evaluation.trajectory import load_trajectories
 
 
 def _run(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -80,7 +80,7 @@ def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
 
 
 def test_bench_prints_a_row_per_setting(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.bench", "task=lcca", "aortas=[type1]", "presets=[internal]",
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.bench", "task=lcca", "aortas=[type1]", "presets=[internal]",
                              "steps=5", "repeats=1", f"hydra.run.dir={tmp_path}/bench"],
                             cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
@@ -93,15 +93,15 @@ def test_bench_prints_a_row_per_setting(tmp_path):
 def _compose(config_name, overrides=()):
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         return compose(config_name=config_name, overrides=list(overrides))
 
 
 def test_one_function_turns_every_tools_config_into_environment_arguments():
-    from cathsim_dmc.cli._common import env_kwargs
-    from cathsim_dmc.agents import CheckpointPolicy
+    from cathsim_dmc.app.cli._common import env_kwargs
+    from cathsim_dmc.learning.agents import CheckpointPolicy
 
     train = _compose("train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7",
                                "experimental.extra_observations=[wire_slack]"])
@@ -131,7 +131,7 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
 def test_an_asset_folder_is_an_aorta_and_names_the_run_and_the_table(tmp_path):
     import shutil
 
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     folder = tmp_path / "my_phantom"
     shutil.copytree(resolve_asset("type1"), folder)

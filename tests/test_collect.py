@@ -7,14 +7,14 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.supervised.collect import MANIFEST, collect
-from cathsim_dmc.supervised.data import load_arrays, read_keys
+from cathsim_dmc.learning.collect import MANIFEST, collect
+from cathsim_dmc.learning.datasets import load_arrays, read_keys
 
 TINY = {"max_steps": 6}
 
 
 def _collect(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.collect", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.collect", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -71,8 +71,8 @@ def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
     # it (it cannot act at all without it).
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.checkpoints import write_policy_file
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.learning.rl.checkpoints import write_policy_file
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     trained_with = {"extra_observations": ["wire_slack"]}
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 3, **trained_with})])
@@ -98,8 +98,8 @@ def test_an_agent_collects_with_the_options_it_was_trained_with(tmp_path):
 def test_enn_agent_records_its_features(tmp_path):
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.checkpoints import write_policy_file
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.learning.rl.checkpoints import write_policy_file
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "enn", 0, {"max_steps": 4})])
     algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,
@@ -128,7 +128,7 @@ def test_enn_agent_records_its_features(tmp_path):
     np.testing.assert_allclose(data["feature_z"][2], z, rtol=1e-5, atol=1e-6)
 
     # Distillation reads Z paired with the image the action was chosen from.
-    from cathsim_dmc.supervised.bc import BCConfig, train_bc
+    from cathsim_dmc.learning.supervised.bc import BCConfig, train_bc
 
     arrays = load_arrays([tmp_path / "data"], ("obs_pixels", "action", "feature_z"), before_action=True)
     np.testing.assert_array_equal(arrays["feature_z"][0], data["start_feature_z"][0])

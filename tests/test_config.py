@@ -1,4 +1,4 @@
-"""cathsim-train's typed config (cathsim_dmc/config.py): unknown keys, wrong types and
+"""cathsim-train's typed config (cathsim_dmc/app/train_schema.py): unknown keys, wrong types and
 out-of-range values fail in one line before any work; every default is defined once; run
 folders written before an option was removed or moved still resume, or say why not."""
 
@@ -11,8 +11,8 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from cathsim_dmc import config, config_tools
-from cathsim_dmc.paths import conf_root
+from cathsim_dmc.app import train_schema as config, tool_schemas as config_tools
+from cathsim_dmc.core.shipped import conf_root
 
 CATHSIM_TRAIN = str(Path(sys.executable).parent / "cathsim-train")  # the installed console script
 
@@ -123,8 +123,8 @@ def test_the_default_train_config_is_the_schema_plus_what_the_option_files_set()
 
 
 def test_the_schema_module_needs_no_simulator_and_no_cli():
-    code = ("import sys, cathsim_dmc.config; "
-            "bad = [m for m in ('dm_control', 'mujoco', 'torch', 'cathsim_dmc.cli') if m in sys.modules]; "
+    code = ("import sys, cathsim_dmc.app.train_schema; "
+            "bad = [m for m in ('dm_control', 'mujoco', 'torch', 'cathsim_dmc.app.cli') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -156,7 +156,7 @@ def test_the_start_pose_on_the_command_line_reaches_the_task():
     from hydra import compose, initialize_config_dir
 
     from cathsim_dmc import tasks
-    from cathsim_dmc.cli._common import env_kwargs
+    from cathsim_dmc.app.cli._common import env_kwargs
 
     def start_rotations(overrides, episodes=4):
         with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
@@ -207,7 +207,7 @@ experimental: {expert_end_game: strokes}
 
 def test_an_old_run_config_has_its_moved_keys_translated_and_its_inert_removed_keys_dropped(caplog):
     old = OmegaConf.create(OLD_RUN_CONFIG)
-    with caplog.at_level("WARNING", logger="cathsim_dmc.config"):
+    with caplog.at_level("WARNING", logger="cathsim_dmc.app.train_schema"):
         cfg = config.upgrade_saved_config(old)
     assert cfg.experimental.normalize_observations is True and "normalize_observations" not in cfg.trainer
     assert "bc_filter" not in cfg.demos and "aim_weight" not in cfg.reward
@@ -266,14 +266,14 @@ def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(t
 
 
 def test_the_image_keys_the_schema_accepts_are_the_students():
-    from cathsim_dmc.supervised.bc import PRESET_FOR_IMAGE
+    from cathsim_dmc.learning.supervised.bc import PRESET_FOR_IMAGE
 
     assert set(config_tools.IMAGE_KEYS) == set(PRESET_FOR_IMAGE)
 
 
 @pytest.mark.parametrize("tool", ["eval", "collect", "bc", "force", "bench", "export"])
 def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
-    from cathsim_dmc.config_tools import TOOL_SCHEMAS
+    from cathsim_dmc.app.tool_schemas import TOOL_SCHEMAS
 
     cfg = OmegaConf.create(_compose(tool))
     config_tools.validate(cfg, tool)

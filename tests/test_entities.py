@@ -5,7 +5,7 @@ import pytest
 from dm_control import composer, mjcf
 
 import cathsim_dmc  # noqa: F401  (selects the GL backend before dm_control renders)
-from cathsim_dmc.arena import OperatingArena
+from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
 
 

@@ -5,9 +5,9 @@ import pytest
 
 from cathsim_dmc.anatomy.asset import load_asset
 from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc.episode_ends import (BESIDE_TARGET, OFF_CENTERLINES, PAST_TARGET, REACHED, SHORT_OF_TARGET,
+from cathsim_dmc.evaluation.episode_ends import (BESIDE_TARGET, OFF_CENTERLINES, PAST_TARGET, REACHED, SHORT_OF_TARGET,
                                       episode_ends, failures_table)
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.core.shipped import resolve_asset
 
 
 @pytest.fixture(scope="module")

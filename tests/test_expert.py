@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import cathsim_dmc  # noqa: F401  (selects the GL backend)
-from cathsim_dmc.experts import CenterlineExpert
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.paths import available_aortas
+from cathsim_dmc.control.expert import CenterlineExpert
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.core.shipped import available_aortas
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +54,7 @@ def test_the_steady_expert_turns_only_in_the_arch_and_its_first_turn_follows_the
     # The default expert's first turn flips sign between nearby starts (pi+0.05: +1, pi+0.1:
     # -1); the steady one holds its rotation up the descending aorta and then turns in
     # proportion to the start's offset, reaching the target from each start.
-    from cathsim_dmc.policies import make_policy
+    from cathsim_dmc.control.policies import make_policy
 
     first_turns = []
     for offset in (-0.2, 0.0, 0.2):

@@ -7,8 +7,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from cathsim_dmc import geom_groups, tasks
-from cathsim_dmc.export import START_KEY, export_scene
+from cathsim_dmc.sim import geom_groups
+
+from cathsim_dmc import tasks
+from cathsim_dmc.sim.export import START_KEY, export_scene
 from shipped import aorta_params
 
 
@@ -65,7 +67,7 @@ def test_the_distance_field_wall_exports_as_prisms(tmp_path):
 
 def test_cli_writes_the_scene_and_refuses_to_overwrite(tmp_path):
     out = tmp_path / "scene"
-    run = lambda *extra: subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.export", "task=lcca", "aorta=type1",
+    run = lambda *extra: subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.export", "task=lcca", "aorta=type1",
                                          f"out={out}", *extra], capture_output=True, text=True, cwd=tmp_path)
     first = run()
     assert first.returncode == 0, first.stderr

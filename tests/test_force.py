@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cathsim_dmc.supervised.force import ForceConfig, ForceNetwork, markdown, nested_subsets, train_force_sizes
+from cathsim_dmc.learning.supervised.force import ForceConfig, ForceNetwork, markdown, nested_subsets, train_force_sizes
 
 
 def _synthetic(episodes=24, steps=10, seed=0):
@@ -53,7 +53,7 @@ def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
 def test_test_outliers_are_also_scored_apart():
     images, force, episodes = _synthetic(episodes=10, steps=4)
     cfg = ForceConfig(sizes=(100,), epochs=1, min_updates=5, batch_size=16, test_fraction=0.2, outlier_n=10.0)
-    from cathsim_dmc.supervised.data import split_by_episode
+    from cathsim_dmc.learning.datasets import split_by_episode
 
     _, test_rows = split_by_episode(episodes, cfg.test_fraction, cfg.seed)
     force = force.copy()
@@ -84,12 +84,12 @@ def test_z_head_is_trained_when_z_is_given():
 
 
 def _force(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.force", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.force", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=600)
 
 
 def test_cli_reports_mse_per_size(tmp_path):
-    from cathsim_dmc.supervised.collect import collect
+    from cathsim_dmc.learning.collect import collect
 
     collect(tmp_path / "data", "lcca", "type1", "forward", episodes=3, episodes_per_shard=2, seed=0,
             task_options={"max_steps": 8}, show_progress=False)

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.cli.forcecheck import CDF_PLOT, RESULT_JSON, RESULT_MD, force_check, simulated_forces
-from cathsim_dmc.trajectory import TrajectoryRecorder
+from cathsim_dmc.app.cli.forcecheck import CDF_PLOT, RESULT_JSON, RESULT_MD, force_check, simulated_forces
+from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
 
 
 def _trajectory(path, forces, step_mean=True):
@@ -59,7 +59,7 @@ def test_csv_reference_by_column_name(simulated, tmp_path):
 
 
 def _cli(tmp_path, *args):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.forcecheck", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.forcecheck", *map(str, args)],
                           capture_output=True, text=True, cwd=tmp_path)
 
 

@@ -6,7 +6,7 @@ import pytest
 
 import cathsim_dmc  # noqa: F401  (registers the ids)
 from cathsim_dmc import tasks
-from cathsim_dmc.gym import CathSimEnv, env_id
+from cathsim_dmc.suite.gym import CathSimEnv, env_id
 
 
 def test_every_pair_is_registered():
@@ -137,8 +137,8 @@ def _stored_episode(max_steps, seed=0, diverge_at=None):
     Returns the buffer, the number of transitions and the last step's info."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.experts import CenterlineExpert
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.control.expert import CenterlineExpert
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     vec = DummyVecEnv([make_env_fn("lcca", "type1", "internal", seed, {"max_steps": max_steps})])
     model = build_sac(vec, ALGO, seed, "cpu", None)
@@ -160,7 +160,7 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
     """SAC's target is r + gamma (1 - done) Q(s'): a time limit or a divergence must be
     stored as a timeout (done but bootstrapped), reaching the target as terminal, also
     when the target is reached on the last allowed step."""
-    from cathsim_dmc.rl.demos import expert_transitions
+    from cathsim_dmc.learning.rl.demos import expert_transitions
 
     # The same expert episode (seed 0) as demonstrations, the way training records them,
     # to find the step on which it reaches the target.
@@ -204,7 +204,7 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
     assert not buffer._get_samples(np.arange(steps)).dones.any()
 
     # Demonstrations follow the same convention: the expert's success is terminal...
-    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions
+    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer, add_transitions
 
     env = CathSimEnv("lcca", "type1", obs="internal", max_steps=5)
     buffer = DemoReplayBuffer(10, env.observation_space, env.action_space, device="cpu",

@@ -6,9 +6,11 @@ from collections import deque
 import numpy as np
 import pytest
 
-from cathsim_dmc import raster, tasks
-from cathsim_dmc.arena import top_camera_matrix
-from cathsim_dmc.observables import TopView
+from cathsim_dmc.sim import raster
+
+from cathsim_dmc import tasks
+from cathsim_dmc.sim.arena import top_camera_matrix
+from cathsim_dmc.sim.render import TopView
 
 SIZE = 80
 
@@ -139,8 +141,8 @@ def test_bad_image_option_names_the_choices(option):
 
 
 def test_an_observation_preset_is_one_yaml_file_read_by_the_api(tmp_path):
-    from cathsim_dmc.observables import OBSERVATION_PRESETS, load_presets
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, load_presets
+    from cathsim_dmc.core.shipped import conf_root
 
     # The shipped files are what the API uses.
     assert load_presets(conf_root() / "obs") == OBSERVATION_PRESETS

@@ -16,12 +16,11 @@ from cathsim_dmc.anatomy.crop import crop_to_paths, smooth_around
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.sdf import SDFGrid
 from cathsim_dmc.anatomy.surface_cleanup import folded_faces, repair_folds
-from cathsim_dmc.experts import CenterlineExpert
-from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.control.expert import CenterlineExpert
+from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 
-sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from segmentation_corpus import VARIANTS, cap_files, make_variant  # noqa: E402
+from cathsim_dmc.anatomy.corpus import VARIANTS, cap_files, make_variant
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 R = 0.010                      # sphere radius (m)

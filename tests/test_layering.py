@@ -74,7 +74,7 @@ def cycles(graph: dict) -> list:
 def test_the_graph_sees_deferred_imports():
     # Most of the package imports inside functions; a graph blind to them would pass anything.
     graph = import_graph()
-    assert "cathsim_dmc.evaluation" in graph["cathsim_dmc.supervised.collect"]
+    assert "cathsim_dmc.evaluation.rollouts" in graph["cathsim_dmc.learning.collect"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
@@ -101,7 +101,7 @@ def test_anatomy_imports_without_dm_control_or_mujoco(module):
 
 def test_anatomy_never_imports_dm_control_or_mujoco():
     # Not even deferred into a function: building, importing and validating an asset run
-    # without a simulator; the MuJoCo compile check is cathsim_dmc.model_check.
+    # without a simulator; the MuJoCo compile check is cathsim_dmc.sim.model_check.
     offenders = []
     for path in sorted((ROOT / PACKAGE / "anatomy").rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
@@ -117,9 +117,9 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
 
 # What an entity may not import: the image observables and their renderers, and every
 # layer built on entities (tasks, the Gymnasium adapter, learning, the command line).
-ENTITY_FORBIDDEN = ("cathsim_dmc.observables", "cathsim_dmc.raster", "cathsim_dmc._gl", "cathsim_dmc.tasks",
-                    "cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.supervised", "cathsim_dmc.agents",
-                    "cathsim_dmc.cli")
+ENTITY_FORBIDDEN = ("cathsim_dmc.sim.render", "cathsim_dmc.sim.raster", "cathsim_dmc.sim.gl_backend", "cathsim_dmc.tasks",
+                    "cathsim_dmc.suite.gym", "cathsim_dmc.learning.rl", "cathsim_dmc.learning.supervised", "cathsim_dmc.learning.agents",
+                    "cathsim_dmc.app.cli")
 
 
 def _imported_names(path: Path) -> list:
@@ -143,16 +143,16 @@ def test_entities_never_import_the_renderer_or_the_layers_above():
 
 def test_the_entity_check_sees_a_forbidden_import(tmp_path):
     module = tmp_path / "bad.py"
-    module.write_text("def f():\n    from cathsim_dmc import observables\n    import cathsim_dmc.raster\n")
-    assert {"cathsim_dmc.observables", "cathsim_dmc.raster"} <= set(_imported_names(module))
+    module.write_text("def f():\n    from cathsim_dmc import observables\n    import cathsim_dmc.sim.raster\n")
+    assert {"cathsim_dmc.sim.render", "cathsim_dmc.sim.raster"} <= set(_imported_names(module))
 
 
 def test_importing_entities_loads_no_renderer():
     # A fresh interpreter: this test process has loaded everything already. The package's
-    # own __init__ picks the GL backend (cathsim_dmc._gl, a few lines of os and ctypes)
+    # own __init__ picks the GL backend (cathsim_dmc.sim.gl_backend, a few lines of os and ctypes)
     # before dm_control is imported, so only the modules that render are checked here.
     code = ("import sys, cathsim_dmc.entities; "
-            "loaded = [m for m in ('cathsim_dmc.observables', 'cathsim_dmc.raster', 'cathsim_dmc.tasks') "
+            "loaded = [m for m in ('cathsim_dmc.sim.render', 'cathsim_dmc.sim.raster', 'cathsim_dmc.tasks') "
             "if m in sys.modules]; "
             "assert not loaded, loaded")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -161,8 +161,8 @@ def test_importing_entities_loads_no_renderer():
 
 # What the task layer may not import: the layers that drive a task (the Gymnasium adapter,
 # policies and experts, learning, evaluation, the command line).
-TASK_FORBIDDEN = ("cathsim_dmc.gym", "cathsim_dmc.rl", "cathsim_dmc.supervised", "cathsim_dmc.policies",
-                  "cathsim_dmc.experts", "cathsim_dmc.evaluation", "cathsim_dmc.fidelity", "cathsim_dmc.cli")
+TASK_FORBIDDEN = ("cathsim_dmc.suite.gym", "cathsim_dmc.learning.rl", "cathsim_dmc.learning.supervised", "cathsim_dmc.control.policies",
+                  "cathsim_dmc.control.expert", "cathsim_dmc.evaluation.rollouts", "cathsim_dmc.evaluation.fidelity", "cathsim_dmc.app.cli")
 
 
 def test_tasks_never_import_the_layers_that_drive_them():
@@ -175,7 +175,7 @@ def test_tasks_never_import_the_layers_that_drive_them():
 def test_physics_and_fidelity_never_import_the_gymnasium_adapter():
     # fidelity measures the model through the composer environment (cathsim_dmc.tasks).
     offenders = [(name, imported) for name in ("physics.py", "fidelity.py", "arena.py")
-                 for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.gym")]
+                 for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.suite.gym")]
     assert offenders == []
 
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def _add(buffer_add, env, n, reward):
 
 
 def test_every_batch_takes_the_demo_share_from_the_demonstrations(env):
-    from cathsim_dmc.rl.demos import DemoReplayBuffer
+    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer
 
     buffer = DemoReplayBuffer(1000, env.observation_space, env.action_space, device="cpu", demo_share=0.25)
     _add(buffer.demos.add, env, 50, reward=1.0)  # demonstrations carry reward 1
@@ -41,7 +41,7 @@ def test_every_batch_takes_the_demo_share_from_the_demonstrations(env):
 
 
 def test_expert_demonstrations_are_recorded_with_the_training_reward(env):
-    from cathsim_dmc.rl.demos import expert_transitions
+    from cathsim_dmc.learning.rl.demos import expert_transitions
 
     demos = expert_transitions(env, episodes=1, seed=0)
     assert demos.successes == 1 and demos.terminated[-1] and not demos.terminated[:-1].any()
@@ -53,7 +53,7 @@ def test_expert_demonstrations_are_recorded_with_the_training_reward(env):
 
 
 def test_takeover_demonstrations_start_where_the_student_left_the_wire(env):
-    from cathsim_dmc.rl.demos import takeover_transitions
+    from cathsim_dmc.learning.rl.demos import takeover_transitions
 
     student_action = np.array([0.5, -0.8], np.float32)  # a student that pushes and turns one way
     demos = takeover_transitions(env, lambda obs: student_action, episodes=2, seed=3, max_student_steps=40)
@@ -69,8 +69,8 @@ def test_takeover_demonstrations_start_where_the_student_left_the_wire(env):
 
 def test_expert_labels_cover_every_state_the_student_reaches(env):
     """DAgger's data: the student drives, the expert labels each state it reaches."""
-    from cathsim_dmc.experts import CenterlineExpert
-    from cathsim_dmc.rl.demos import expert_labels
+    from cathsim_dmc.control.expert import CenterlineExpert
+    from cathsim_dmc.learning.rl.demos import expert_labels
 
     short = CathSimEnv("bca", "type1", obs="internal", max_steps=15)
     try:
@@ -89,7 +89,7 @@ def test_expert_labels_cover_every_state_the_student_reaches(env):
 
 
 def test_cloning_batches_draw_from_demonstrations_and_labels_by_their_sizes(env):
-    from cathsim_dmc.rl.demos import DemoReplayBuffer, Labels, add_labels
+    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer, Labels, add_labels
 
     buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu", label_capacity=1000)
     obs = {k: np.zeros((1,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
@@ -111,7 +111,7 @@ def test_cloning_batches_draw_from_demonstrations_and_labels_by_their_sizes(env)
 def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.rl.checkpoints import best_record, keep_if_best
+    from cathsim_dmc.learning.rl.checkpoints import best_record, keep_if_best
 
     model = SAC("MultiInputPolicy", env, buffer_size=100, learning_starts=10, device="cpu")
     sequence = [(1000, 0.2, -5.0, True), (2000, 0.1, 3.0, False), (3000, 0.2, -6.0, False),
@@ -123,7 +123,7 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
 
 
 def test_eval_at_start_scores_the_pre_trained_policy_before_the_first_step(tmp_path):
-    from cathsim_dmc.rl import train as training
+    from cathsim_dmc.learning.rl import train as training
 
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
     trainer = dict(total_timesteps=20, eval_every=10, eval_episodes=1, eval_at_start=True, checkpoint_every=0,
@@ -145,8 +145,8 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.paths import conf_root
-    from cathsim_dmc.rl import train as training
+    from cathsim_dmc.core.shipped import conf_root
+    from cathsim_dmc.learning.rl import train as training
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
@@ -176,7 +176,7 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
 
 
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
-    from cathsim_dmc.agents import load_checkpoint_policy
+    from cathsim_dmc.learning.agents import load_checkpoint_policy
 
     run = tmp_path / "run"
     args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
@@ -184,7 +184,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
             "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
             "experimental.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
             "demos.critic_warmup_steps=5", f"hydra.run.dir={run}"]
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=tmp_path,
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], cwd=tmp_path,
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     checkpoints = run / "checkpoints"
@@ -209,7 +209,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
 
     # Resuming continues the saved statistics (and the run's clock in evaluations.jsonl).
     count_before = stats.count
-    again = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", f"resume={run}",
+    again = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", f"resume={run}",
                             "trainer.total_timesteps=60", f"hydra.run.dir={tmp_path}/resume"],
                            cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert again.returncode == 0, again.stderr[-2000:]
@@ -219,8 +219,8 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
 
 def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_path):
     """Rewards recomputed from a cathsim-collect dataset's tip positions equal the live ones."""
-    from cathsim_dmc.supervised.collect import collect
-    from cathsim_dmc.rl.demos import dataset_transitions, expert_transitions
+    from cathsim_dmc.learning.collect import collect
+    from cathsim_dmc.learning.rl.demos import dataset_transitions, expert_transitions
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7,
             show_progress=False)
@@ -238,7 +238,7 @@ def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_
 
 
 def test_demonstrations_beyond_the_capacity_are_refused(env):
-    from cathsim_dmc.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions
+    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions
 
     demos = expert_transitions(env, episodes=1, seed=0)
     buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu",
@@ -252,9 +252,9 @@ def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_exp
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
-    from cathsim_dmc.rl.sacfd import warm_up_critic
-    from cathsim_dmc.rl.train import build_sac
+    from cathsim_dmc.learning.rl.demos import add_transitions, expert_transitions
+    from cathsim_dmc.learning.rl.sacfd import warm_up_critic
+    from cathsim_dmc.learning.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
     algo = dict(learning_rate=3e-4, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
@@ -283,9 +283,9 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.demos import add_transitions, expert_transitions
-    from cathsim_dmc.rl.checkpoints import keep_if_best
-    from cathsim_dmc.rl.train import build_sac
+    from cathsim_dmc.learning.rl.demos import add_transitions, expert_transitions
+    from cathsim_dmc.learning.rl.checkpoints import keep_if_best
+    from cathsim_dmc.learning.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
     algo = dict(learning_rate=1e-3, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
@@ -315,8 +315,8 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     torch.testing.assert_close(saved_flat, averaged)
     # A periodic checkpoint holds the trained actor and the average beside it; cathsim-eval
     # plays the average, the policy its periodic evaluation scored.
-    from cathsim_dmc.agents import load_checkpoint_policy
-    from cathsim_dmc.rl.checkpoints import save_checkpoint, write_policy_file
+    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.learning.rl.checkpoints import save_checkpoint, write_policy_file
 
     write_policy_file(tmp_path, "internal", "bca", "type1")
     step_file = save_checkpoint(model, tmp_path / "checkpoints", replay_buffer=False).with_name(
@@ -331,9 +331,9 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
     import torch
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.agents import load_checkpoint_policy
-    from cathsim_dmc.rl.callbacks import break_best_tie
-    from cathsim_dmc.rl.checkpoints import (append_evaluation, best_record, keep_if_best, save_model,
+    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.learning.rl.callbacks import break_best_tie
+    from cathsim_dmc.learning.rl.checkpoints import (append_evaluation, best_record, keep_if_best, save_model,
                                             write_policy_file)
 
     write_policy_file(tmp_path, "internal", "bca", "type1")
@@ -360,7 +360,7 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
     for a, b in zip(kept.actor.parameters(), source.actor.parameters()):
         torch.testing.assert_close(a, b)
     # Broken once for these evaluations: a finished run resumed does not play them again.
-    from cathsim_dmc.rl.callbacks import has_unbroken_tie
+    from cathsim_dmc.learning.rl.callbacks import has_unbroken_tie
 
     assert not has_unbroken_tie(tmp_path)
     assert break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15), 10, 2,
@@ -379,7 +379,7 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
 def test_the_demonstrations_follow_the_target_and_the_preset(overrides, episodes, capacity, takeover_rounds, expert):
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         demos = compose(config_name="train", overrides=overrides).demos
@@ -396,9 +396,9 @@ def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from cathsim_dmc.paths import conf_root
-    from cathsim_dmc.rl import train as training
-    from cathsim_dmc.rl.sacfd import SACfD
+    from cathsim_dmc.core.shipped import conf_root
+    from cathsim_dmc.learning.rl import train as training
+    from cathsim_dmc.learning.rl.sacfd import SACfD
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
@@ -428,7 +428,7 @@ def test_dagger_rounds_add_labels_that_a_resumed_run_reads_back(tmp_path):
     and a resumed run (which does not pre-train again) reads them back for the cloning term."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cathsim_dmc.rl import train as training
+    from cathsim_dmc.learning.rl import train as training
 
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
     demos = dict(episodes=1, pretrain_actor_steps=5, dagger_rounds=2, dagger_episodes=1, bc_weight=0.5)
@@ -464,9 +464,9 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
     """demos.expert=expert_steady: every demonstration, takeover and DAgger label comes from
     the steady expert, which never turns while the tip climbs the descending aorta (the
     default expert does turn there, at these starts)."""
-    from cathsim_dmc.config import DEMONSTRATORS
-    from cathsim_dmc.policies import BUILTIN_POLICIES
-    from cathsim_dmc.rl import train as training
+    from cathsim_dmc.app.train_schema import DEMONSTRATORS
+    from cathsim_dmc.control.policies import BUILTIN_POLICIES
+    from cathsim_dmc.learning.rl import train as training
 
     assert set(DEMONSTRATORS) <= set(BUILTIN_POLICIES)  # every name the schema accepts can be built
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])

@@ -15,7 +15,7 @@ def learning_results(repo_root):
 def test_every_variant_composes_with_the_training_config(learning_results):
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         for variant, (_, budget) in learning_results.VARIANTS.items():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cathsim_dmc import metrics
+from cathsim_dmc.evaluation import metrics
 
 
 def test_straight_episode_known_values():
@@ -89,8 +89,8 @@ def test_force_and_safety_use_the_step_mean():
 
 def test_trajectory_dataset_round_trip(tmp_path):
     """Recorder -> npz -> dataset: images scaled to [0, 1], held-out split by whole episodes."""
-    from cathsim_dmc.supervised.data import TrajectoryDataset, split_by_episode
-    from cathsim_dmc.trajectory import TrajectoryRecorder
+    from cathsim_dmc.learning.datasets import TrajectoryDataset, split_by_episode
+    from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
 
     recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="test", record_observations=True)
     for episode in range(4):

@@ -11,7 +11,7 @@ import pytest
 
 from cathsim_dmc.anatomy import (ARCH_OBLIQUITY_DEG, PRESETS, build_arch, load_asset, ostia_obliquity_deg,
                                  params_hash, sample_arch_params)
-from cathsim_dmc.arena import lao_camera_axes
+from cathsim_dmc.sim.arena import lao_camera_axes
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 OBLIQUE = ("type1_oblique", "type2_oblique", "type3_oblique")
@@ -169,7 +169,7 @@ def test_lao_camera_view_axis_and_framing():
     offset = physics.data.cam_xpos[cam] - (np.asarray(lo) + hi) / 2
     assert offset[0] > 0.1 and offset[2] > 0.1 and abs(offset[1]) < 1e-9
     # Every vertex of the lumen is in the image.
-    from cathsim_dmc.arena import top_camera_matrix
+    from cathsim_dmc.sim.arena import top_camera_matrix
 
     vertices = env.task.aorta.asset.visual_vertices.astype(float)
     uv = (top_camera_matrix(physics, size=SIZE) @ np.c_[vertices, np.ones(len(vertices))].T)[:2]
@@ -228,8 +228,8 @@ def test_lao_mask_is_where_the_wire_projects(renderer):
 def test_lao_reaches_the_environment_from_the_tools_config():
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.cli._common import env_kwargs
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.app.cli._common import env_kwargs
+    from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         lao = env_kwargs(compose("eval", ["obs=pixels", "obs.lao_deg=40", "aorta=type2_oblique"]))

@@ -32,7 +32,7 @@ def _overrides(command):
 def test_every_training_cell_composes_into_its_recipe(paper, tmp_path):
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.core.shipped import conf_root
 
     plan = paper.build_plan(tmp_path)
     train = [c for c in plan.cells if c.tool == "train"]

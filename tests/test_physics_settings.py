@@ -7,10 +7,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc import tasks
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.policies import make_policy
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.control.policies import make_policy
 
 # What the compiled model's options were before they were set explicitly (commit 74caa34):
 # Newton with MuJoCo's defaults, noslip 5 (tolerance 0) inherited from dm_control's arena.

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.observables import OBSERVATION_PRESETS
-from cathsim_dmc.pretrained import load_pretrained, policy_files, shipped_targets
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
+from cathsim_dmc.learning.pretrained import load_pretrained, policy_files, shipped_targets
 
 
 def test_both_targets_ship_a_small_actor_with_a_card_naming_its_observations():

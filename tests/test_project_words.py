@@ -12,7 +12,7 @@ from pathlib import Path
 SCANNED = ("README.md", "CHANGELOG.md", "docs", "conf", "scripts", "experiments", "cathsim_dmc", "tasks")
 TEXT_SUFFIXES = {".md", ".py", ".yaml", ".yml", ".sh", ".c", ".h", ".txt", ".toml", ".cfg", ".json"}
 # Where "session" means a teleoperation run (the class, its instance and its docstrings).
-TELEOPERATION_MODULES = ("cathsim_dmc/teleop.py", "cathsim_dmc/cli/teleop.py")
+TELEOPERATION_MODULES = ("cathsim_dmc/control/teleop.py", "cathsim_dmc/app/cli/teleop.py")
 WORD = re.compile(r"\bsessions?\b", re.IGNORECASE)
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.core.shipped import resolve_asset
 
 POOL = {"assets": ["type1", "type2"]}
 
@@ -79,7 +79,7 @@ def test_bad_pool_settings_name_themselves(params, needle):
 
 def test_cathsim_eval_records_each_episodes_anatomy(tmp_path):
     run = tmp_path / "run"
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", "task=bca", "aorta=random",
+    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", "task=bca", "aorta=random",
                              "aorta.params.assets=[type1,type2]", "policy=expert", "episodes=4", "video=false",
                              f"hydra.run.dir={run}"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr

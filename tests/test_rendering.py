@@ -2,7 +2,7 @@
 to the anatomy as the cameras are documented, not as they happen to be built.
 
 Every expected pixel here comes from the asset's coordinates in metres and the documented
-views (docs/model.md, `cathsim_dmc.arena`): +x patient left, +y superior, +z anterior; `top`
+views (docs/model.md, `cathsim_dmc.sim.arena`): +x patient left, +y superior, +z anterior; `top`
 looks along -z, image right = +x and image up = +y (the AP view, the patient's left on the
 image's right); `side` looks along -x, image right = -z and image up = +y; both orthographic,
 centred on the aorta's bounds, the field 1.1 times the larger extent in view. Nothing reads
@@ -16,10 +16,12 @@ import cv2
 import numpy as np
 import pytest
 
-from cathsim_dmc import raster, tasks
+from cathsim_dmc.sim import raster
+
+from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
-from cathsim_dmc.observables import TopView
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.sim.render import TopView
+from cathsim_dmc.core.shipped import resolve_asset
 
 FRAMING_MARGIN = 1.1  # `OperatingArena.frame_cameras`
 

@@ -7,7 +7,7 @@ import pytest
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.core.shipped import resolve_asset
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cathsim_dmc.anatomy.paths import CenterlinePath
-from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.tasks.roadmap import AHEAD_MM, CM, ROADMAP_SIZE
 
 # Offsets into the roadmap vector (tasks/roadmap.py's order).
@@ -124,7 +124,7 @@ def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
     """obs=roadmap_timed: target_depth_time is the expert's own count of steps at the
     target's depth (until the expert's first retreat, where it starts its count afresh),
     and the roadmap beside it is the roadmap preset's."""
-    from cathsim_dmc.experts import CenterlineExpert
+    from cathsim_dmc.control.expert import CenterlineExpert
     from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS
 
     env = CathSimEnv(task="bca", aorta="type3", obs="roadmap_timed")

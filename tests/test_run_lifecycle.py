@@ -13,7 +13,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from cathsim_dmc.cli.train import explicit_algo
+from cathsim_dmc.app.cli.train import explicit_algo
 
 # A tiny training run; trainer.checkpoint_every is left at its default (with every evaluation).
 TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
@@ -22,7 +22,7 @@ TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts
 
 
 def _tool(name):
-    return [sys.executable, "-m", f"cathsim_dmc.cli.{name}"]
+    return [sys.executable, "-m", f"cathsim_dmc.app.cli.{name}"]
 
 
 # Runs a module with SIGINT back at its default first: a suite started in the background by
@@ -47,7 +47,7 @@ def _no_process_outlives_its_test():
 
 def _start(name, args, cwd, log):
     """The tool as a process, its stdout and stderr in files (a pipe nobody reads could block it)."""
-    process = subprocess.Popen([sys.executable, "-c", _WITH_CTRL_C, f"cathsim_dmc.cli.{name}", *args], cwd=cwd,
+    process = subprocess.Popen([sys.executable, "-c", _WITH_CTRL_C, f"cathsim_dmc.app.cli.{name}", *args], cwd=cwd,
                                stdout=open(f"{log}.out", "w"), stderr=open(f"{log}.err", "w"))
     _STARTED.append(process)
     return process
@@ -176,8 +176,8 @@ def test_the_default_cadence_resumes_a_run_killed_at_a_random_step(tmp_path):
 def test_an_image_preset_takes_its_measured_recipe_unless_algo_is_given():
     from hydra import compose, initialize_config_dir
 
-    from cathsim_dmc.config_tools import register_schemas
-    from cathsim_dmc.paths import conf_root
+    from cathsim_dmc.app.tool_schemas import register_schemas
+    from cathsim_dmc.core.shipped import conf_root
 
     register_schemas()
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):

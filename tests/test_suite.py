@@ -5,7 +5,7 @@ import pytest
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
-from cathsim_dmc.paths import available_aortas, resolve_asset
+from cathsim_dmc.core.shipped import available_aortas, resolve_asset
 from shipped import task_params
 
 

@@ -7,10 +7,10 @@ import sys
 
 import numpy as np
 
-from cathsim_dmc.evaluation import METRICS_JSON, write_report
-from cathsim_dmc.teleop import (KEY_DOWN, KEY_LEFT, KEY_Q, KEY_R, KEY_RIGHT, KEY_SPACE, KEY_UP, QUIT, RESET,
+from cathsim_dmc.evaluation.rollouts import METRICS_JSON, write_report
+from cathsim_dmc.control.teleop import (KEY_DOWN, KEY_LEFT, KEY_Q, KEY_R, KEY_RIGHT, KEY_SPACE, KEY_UP, QUIT, RESET,
                                 TeleopSession, TeleopState, handle_key)
-from cathsim_dmc.trajectory import TrajectoryRecorder, load_trajectories
+from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder, load_trajectories
 
 
 def _keys(*keys, state=TeleopState()):
@@ -43,7 +43,7 @@ SCRIPT = {0: [KEY_UP], 8: [KEY_LEFT], 11: [KEY_RIGHT], 18: [KEY_DOWN, KEY_DOWN],
 
 
 def test_scripted_session_is_recorded_and_scored(tmp_path):
-    from cathsim_dmc.gym import CathSimEnv
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     env = CathSimEnv(task="bca", aorta="type1", max_steps=100)
     recorder = TrajectoryRecorder(env.task.target_name, env.aorta_name, env.task.target_position_m, policy="human")
@@ -71,6 +71,6 @@ def test_scripted_session_is_recorded_and_scored(tmp_path):
 
 def test_without_a_display_it_says_so_and_exits_2(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    run = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.teleop"], capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.teleop"], capture_output=True, text=True,
                          cwd=tmp_path, env=env)
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and "xvfb-run" in run.stderr, run.stderr

@@ -13,7 +13,7 @@ TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts
 
 
 def _train(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.train", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=900)
 
 
@@ -36,7 +36,7 @@ def test_a_trained_run_evaluates_under_its_own_physics_and_resumes_from_its_last
     assert policy_file["obs"] == "internal" and policy_file["env_options"]["physics"] == "accurate"
 
     def evaluate(name, *extra):
-        result = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", f"policy={run}", "episodes=1",
+        result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", f"policy={run}", "episodes=1",
                                  "task.max_steps=10", "video=false", f"hydra.run.dir={tmp_path}/{name}", *extra],
                                 cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert result.returncode == 0, result.stderr[-2000:]
@@ -60,8 +60,8 @@ def test_a_trained_run_evaluates_under_its_own_physics_and_resumes_from_its_last
 def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.replay import grow_replay_buffer
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.learning.rl.replay import grow_replay_buffer
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
     algo = dict(learning_rate=3e-4, buffer_size=40, learning_starts=100, batch_size=8, tau=0.005, gamma=0.99,
@@ -87,9 +87,9 @@ def test_the_periodic_evaluation_keeps_sb3s_evaluation_callbacks():
     from stable_baselines3.common.callbacks import BaseCallback, StopTrainingOnRewardThreshold
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.gym import CathSimEnv
-    from cathsim_dmc.rl.callbacks import PeriodicEvaluation
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.suite.gym import CathSimEnv
+    from cathsim_dmc.learning.rl.callbacks import PeriodicEvaluation
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     class Calls(BaseCallback):
         def _on_step(self):  # on_step counts the calls in n_calls
@@ -129,7 +129,7 @@ def test_device_option_reaches_the_model():
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
     algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from cathsim_dmc.cli.view import episode_actions, replay
-from cathsim_dmc.gym import CathSimEnv
-from cathsim_dmc.teleop import KEY_LEFT, KEY_R, KEY_UP, TeleopSession
-from cathsim_dmc.trajectory import TrajectoryRecorder
+from cathsim_dmc.app.cli.view import episode_actions, replay
+from cathsim_dmc.suite.gym import CathSimEnv
+from cathsim_dmc.control.teleop import KEY_LEFT, KEY_R, KEY_UP, TeleopSession
+from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
 
 
 def test_replay_reproduces_the_recording():

@@ -1,4 +1,4 @@
-"""The distance-field wall (`cathsim_dmc.wall_field`, physics `fast_field`): the sampled field
+"""The distance-field wall (`cathsim_dmc.sim.wall_field`, physics `fast_field`): the sampled field
 against analytic distances, the compiled contact test against known geometry, MuJoCo's
 own SDF contacts left alone, and the aorta's wire against the prism wall's."""
 
@@ -11,8 +11,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cathsim_dmc import wall_field
-from cathsim_dmc.gym import CathSimEnv
+from cathsim_dmc.sim import wall_field
+from cathsim_dmc.suite.gym import CathSimEnv
 
 MARGIN_M = 1e-3  # the vessel wall's contact margin (Aorta.contact_margin_m)
 
@@ -112,7 +112,7 @@ def test_a_capsule_across_a_ridge_touches_it_in_the_middle():
 SLAB_AND_SPHERE = """
 import sys, mujoco, numpy as np
 if sys.argv[1] == "installed":
-    from cathsim_dmc import wall_field
+    from cathsim_dmc.sim import wall_field
     wall_field.native()
 spec = mujoco.MjSpec()
 box = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (-0.01, 0.0)])
@@ -163,7 +163,7 @@ def test_an_asset_without_prisms_is_refused(tmp_path):
     import shutil
 
     from cathsim_dmc.entities import Aorta
-    from cathsim_dmc.paths import resolve_asset
+    from cathsim_dmc.core.shipped import resolve_asset
 
     folder = tmp_path / "odd"
     shutil.copytree(resolve_asset("type1"), folder)

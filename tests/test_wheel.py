@@ -20,7 +20,7 @@ def test_wheel_installs_and_loads_a_task(tmp_path, repo_root):
                    check=True, capture_output=True, timeout=600)
     code = (
         "import numpy as np, cathsim_dmc, cathsim_dmc.tasks as tasks\n"
-        "from cathsim_dmc.paths import assets_root, conf_root\n"
+        "from cathsim_dmc.core.shipped import assets_root, conf_root\n"
         "for where in (cathsim_dmc.__file__, tasks.__file__, str(assets_root()), str(conf_root())):\n"
         "    assert where.startswith(%r), where\n"
         "assert (conf_root() / 'eval.yaml').is_file()\n"
@@ -32,7 +32,7 @@ def test_wheel_installs_and_loads_a_task(tmp_path, repo_root):
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().endswith("ok")
     # A tool from the wheel composes its config, shared Hydra settings included.
-    tool = subprocess.run([sys.executable, "-m", "cathsim_dmc.cli.eval", "policy=forward", "episodes=1",
+    tool = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", "policy=forward", "episodes=1",
                            "task.max_steps=2", "video=false", f"hydra.run.dir={tmp_path / 'eval'}"], cwd=tmp_path,
                           capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(target)})
     assert tool.returncode == 0, tool.stderr[-2000:]

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 from dm_control import mjcf
 
-from cathsim_dmc import fidelity, geom_groups
-from cathsim_dmc import physics as cs_physics
+from cathsim_dmc.evaluation import fidelity
+
+from cathsim_dmc.sim import geom_groups
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.entities import Guidewire
 
 # The fidelity gate of the physics settings: the beam, tip, force and insertion checks hold under each.

@@ -37,7 +37,7 @@ from scipy import ndimage
 FIELD_VERSION = 1
 DEFAULT_SPACING_M = 1e-3
 DEFAULT_TRUNCATION_M = 4e-3
-# One field per compiled model: kept as many as the model cache keeps (cathsim_dmc.model_cache;
+# One field per compiled model: kept as many as the model cache keeps (cathsim_dmc.sim.model_cache;
 # about 1 MB each), so a random-anatomy pool does not rebuild its fields (2-3 s each) in turn.
 MAX_CACHED_FIELDS = int(os.environ.get("CATHSIM_DMC_MAX_CACHED_MODELS", 256))
 _RAY_OFFSET = (1.2345e-4, 3.1416e-4)  # grid units: keeps parity rays off mesh vertices and edges

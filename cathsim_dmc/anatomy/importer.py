@@ -42,7 +42,7 @@ go on:
 9. **wall**: one prism per lumen triangle extruded outward (as generated
    arches);
 10. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
-   CLI passes `cathsim_dmc.model_check.validate_and_compile`, which adds the
+   CLI passes `cathsim_dmc.sim.model_check.validate_and_compile`, which adds the
    MuJoCo compile) and only then move the folder into place.
 
 This module runs the pipeline; the steps live in `mesh_repair` (1-3), `mesh_grid` (4),

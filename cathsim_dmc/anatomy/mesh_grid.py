@@ -30,7 +30,7 @@ def check_grid_memory(v, f, spacing: float, pad: float, path, available_bytes: O
     """The planned peak memory of the grid stages (bytes), or MeshImportError (one line,
     naming sdf_mm) if it exceeds MEMORY_FRACTION of the available memory: refused before
     anything large is allocated."""
-    from cathsim_dmc.checks import available_memory_bytes
+    from cathsim_dmc.core.checks import available_memory_bytes
 
     _, n = grid_shape(v, spacing, pad)
     nodes = float(np.prod(n.astype(float)))

@@ -24,7 +24,7 @@ Ostia come from ``meta["ostia"]`` (the generator writes them) or are estimated
 from the centerlines (where the lumen radius jumps, and where the centerlines
 to different sites part).
 
-No MuJoCo here: `cathsim_dmc.model_check.validate_and_compile` adds the check
+No MuJoCo here: `cathsim_dmc.sim.model_check.validate_and_compile` adds the check
 that the pieces and the visual mesh compile and step.
 """
 
@@ -158,7 +158,7 @@ class ValidationReport:
     shell_samples: int
     ostium_samples: int
     holes: int
-    compile_seconds: Optional[float]     # MuJoCo compile (cathsim_dmc.model_check); None: not run or failed
+    compile_seconds: Optional[float]     # MuJoCo compile (cathsim_dmc.sim.model_check); None: not run or failed
     seconds: float
     problems: List[str]
 
@@ -310,7 +310,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
 
     `checks` selects among "sites", "lumen" (the probe along the centerlines),
     "intrusion" and "wall". Skipped checks report NaN / 0 samples; `compile_seconds`
-    is None (see `cathsim_dmc.model_check`).
+    is None (see `cathsim_dmc.sim.model_check`).
     """
     unknown = set(checks) - {"sites", "lumen", "intrusion", "wall"}
     if unknown:

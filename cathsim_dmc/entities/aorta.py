@@ -24,9 +24,9 @@ from dm_control import composer, mjcf
 
 from cathsim_dmc.anatomy import AortaAsset, load_asset
 from cathsim_dmc.anatomy.validate import open_end_plane
-from cathsim_dmc import geom_groups
-from cathsim_dmc.checks import check_parameters
-from cathsim_dmc.paths import resolve_asset
+from cathsim_dmc.sim import geom_groups
+from cathsim_dmc.core.checks import check_parameters
+from cathsim_dmc.core.shipped import resolve_asset
 
 
 def moved_outward(pieces, distance_m: float) -> tuple:
@@ -102,7 +102,7 @@ class Aorta(composer.Entity):
           wall: how the wall meets the wire. "prisms": one convex MuJoCo geom per lumen
             triangle (MuJoCo's own contact tests). "field": one SDF geom whose contacts
             come from the lumen's signed distance, sampled every 0.5 mm, through a
-            compiled contact test (`cathsim_dmc.wall_field`; needs a C compiler once, and
+            compiled contact test (`cathsim_dmc.sim.wall_field`; needs a C compiler once, and
             `hulls_in_mjcf=False`). Both put the contact constraint on the lumen surface.
         """
         if wall not in WALLS:
@@ -115,7 +115,7 @@ class Aorta(composer.Entity):
                          finite=dict(solref=solref, solimp=solimp, rgba=rgba))
         self.wall = wall
         if wall == "field":
-            from cathsim_dmc import wall_field
+            from cathsim_dmc.sim import wall_field
 
             wall_field.native()  # built and in MuJoCo's table before any model with this wall steps
         self._asset: AortaAsset = load_asset(resolve_asset(asset))
@@ -199,8 +199,8 @@ class Aorta(composer.Entity):
 
     def _add_field(self, spec: mujoco.MjSpec, prefix: str, placement: dict) -> None:
         """The wall as one static SDF geom in the world body, with its distance field in a
-        numeric field of the same name (world coordinates; see `cathsim_dmc.wall_field`)."""
-        from cathsim_dmc import wall_field
+        numeric field of the same name (world coordinates; see `cathsim_dmc.sim.wall_field`)."""
+        from cathsim_dmc.sim import wall_field
 
         rotation = np.eye(3)
         offset = np.zeros(3)
@@ -235,7 +235,7 @@ class Aorta(composer.Entity):
         pieces = np.concatenate(self.wall_pieces) if self.wall_pieces else np.zeros((0, 3))
         wall = b"wall in worldbody"
         if self.wall == "field":
-            from cathsim_dmc import wall_field
+            from cathsim_dmc.sim import wall_field
 
             wall = b"field wall %r %s" % ((wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M),
                                           wall_field.source_digest().encode())

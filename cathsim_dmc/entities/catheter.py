@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cathsim_dmc.checks import check_number
+from cathsim_dmc.core.checks import check_number
 from cathsim_dmc.entities.guidewire import joint_rod_shares_m
 
 

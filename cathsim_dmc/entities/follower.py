@@ -41,8 +41,8 @@ import numpy as np
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
-from cathsim_dmc import geom_groups
-from cathsim_dmc.checks import check_parameters
+from cathsim_dmc.sim import geom_groups
+from cathsim_dmc.core.checks import check_parameters
 from cathsim_dmc.entities.observables import JointObservables
 
 

@@ -1,7 +1,7 @@
 """Observables the entities share: joint positions and velocities.
 
 This module sits in the entities layer so that building an entity never loads the
-image observables (`cathsim_dmc.observables`, with its raster renderer and GL set-up).
+image observables (`cathsim_dmc.sim.render`, with its raster renderer and GL set-up).
 """
 
 from __future__ import annotations

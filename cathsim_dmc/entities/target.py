@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dm_control import composer, mjcf
 
-from cathsim_dmc import geom_groups
+from cathsim_dmc.sim import geom_groups
 
 
 class TargetMarker(composer.Entity):

@@ -1,0 +1,1 @@
+"""The command-line tools: their typed config schemas and the Hydra apps (cli/)."""

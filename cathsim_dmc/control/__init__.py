@@ -1,0 +1,1 @@
+"""What acts without learning: scripted policies, the privileged expert, keyboard teleoperation."""

@@ -1,0 +1,230 @@
+"""Trained agents as policies: a checkpoint of cathsim-train (SAC) or cathsim-bc loaded
+into a function (observation, env) -> action, like the built-in ones of
+`cathsim_dmc.control.policies`.
+
+    policy = make_policy("outputs/train/bca-type1/internal/<run>")  # or "expert", "random" ...
+
+This module sits above the learning packages (rl/, supervised/) and the policies, which
+import none of it: loading a checkpoint needs SB3 and torch, a scripted policy does not.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS
+from cathsim_dmc.core.shipped import assets_root
+from cathsim_dmc.control.policies import BUILTIN_POLICIES
+from cathsim_dmc.control.policies import make_policy as make_builtin_policy
+from cathsim_dmc.core.run_files import (POLICY_FILE, is_temporary, load_normalizer,  # noqa: F401  (public here too)
+                                   normalizer_path)
+
+
+class CheckpointPolicy:
+    """A trained agent loaded from a checkpoint; acts deterministically on observations.
+
+    :param model: an object with SB3's ``predict(observation, deterministic)`` (a SAC model
+        or a loaded cathsim-bc student)
+    :param obs_preset: the observation preset it was trained with
+    :param image_options: the renderer and style it was trained with
+    :param env_options: environment options it was trained with that change what it sees
+        or drives (e.g. extra observations, the physics settings)
+    :param normalizer: SB3's VecNormalize with the training's observation statistics, or None
+    :param path: the file it was loaded from (None: a model in memory)
+    """
+
+    def __init__(self, model, obs_preset: str, image_options: dict | None = None, env_options: dict | None = None,
+                 normalizer=None, path=None):
+        self.model = model
+        self.obs_preset = obs_preset
+        self.image_options = dict(image_options or {})
+        self.env_options = dict(env_options or {})
+        self.normalizer = normalizer
+        self.path = None if path is None else Path(path)
+
+    def __call__(self, observation, env) -> np.ndarray:
+        # A model with memory (a frame-stacking student) starts afresh with each episode.
+        if hasattr(self.model, "reset") and getattr(getattr(env, "task", None), "step_count", None) == 0:
+            self.model.reset()
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+
+def find_checkpoint(path) -> Path:
+    """The model file for `path`: a checkpoint file itself, or in a run folder the one its
+    own final report evaluated: checkpoints/best.zip when the run kept one (and its
+    config.yaml does not say trainer.final_policy=final), else the final model, else the
+    newest checkpoint."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        best = path / "checkpoints" / "best.zip"
+        if best.is_file() and _final_policy(path) == "best":
+            return best
+        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
+            if candidate.is_file():
+                return candidate
+        zips = sorted((p for p in path.glob("**/*.zip") if not is_temporary(p)), key=lambda p: p.stat().st_mtime)
+        if zips:
+            return zips[-1]
+        raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")
+    raise FileNotFoundError(f"no checkpoint at {path}")
+
+
+def _final_policy(run_dir: Path) -> str:
+    """trainer.final_policy of a cathsim-train run folder ("best" when it does not say)."""
+    saved = run_dir / "config.yaml"
+    if not saved.is_file():
+        return "best"
+    from omegaconf import OmegaConf
+
+    return str(OmegaConf.select(OmegaConf.load(saved), "trainer.final_policy", default="best"))
+
+
+def load_checkpoint_policy(path) -> CheckpointPolicy:
+    """Load a checkpoint written by cathsim-train (or cathsim-bc).
+
+    Its `policy.json` (next to it, or in the run folder above) names the algorithm and
+    the observation preset the agent was trained with. An agent trained with a task
+    option since removed fails in one line (ValueError): it would be evaluated on a task
+    other than its own.
+    """
+    model_path = find_checkpoint(path)
+    info = None
+    for folder in (model_path.parent, model_path.parent.parent):
+        if (folder / POLICY_FILE).is_file():
+            info = json.loads((folder / POLICY_FILE).read_text())
+            break
+    if info is None:
+        raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+    env_options = trained_env_options(model_path, info.get("env_options"))
+    algo = info.get("algo", "sac")
+    try:
+        if algo == "sac":
+            from stable_baselines3 import SAC
+
+            model = SAC.load(model_path, device="cpu")
+            average = getattr(model, "_actor_average", None)
+            if average is not None:  # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
+                model.actor.load_state_dict(average)
+        elif algo == "bc":
+            from cathsim_dmc.learning.supervised.bc import load_bc_policy
+
+            model = load_bc_policy(model_path)
+        else:
+            raise ValueError(f"{model_path}: unknown algorithm {algo!r} in {POLICY_FILE}")
+    except (OSError, KeyError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
+        raise ValueError(f"{model_path} is not a readable checkpoint ({type(error).__name__}: {error})") from error
+    normalizer = None
+    if info.get("normalize_observations"):
+        stats = normalizer_path(model_path)
+        if not stats.is_file():
+            raise FileNotFoundError(f"{model_path} was trained with normalised observations but {stats.name} "
+                                    f"is missing beside it")
+        try:
+            normalizer = load_normalizer(stats)
+        except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
+            raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
+    return CheckpointPolicy(model, info["obs"], info.get("image_options"), env_options, normalizer, path=model_path)
+
+
+def trained_env_options(model_path, env_options: dict | None) -> dict:
+    """A checkpoint's `env_options` as the current task takes them. A removed option left
+    at None (off: what the task now always does) is dropped; one that was on fails in one
+    line, naming it."""
+    options = dict(env_options or {})
+    for name in [name for name in options if name in REMOVED_TASK_ARGUMENTS]:
+        value = options.pop(name)
+        if value is not None:
+            raise ValueError(f"{model_path} was trained with {name}={value!r}, an option "
+                             f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for")
+    return options
+
+
+# -- the shipped navigators (cathsim_dmc.learning.pretrained writes them) ----------------------
+PRETRAINED = "pretrained"  # the policy name the tools accept (policy=pretrained)
+POLICY_FOLDER = "policies"
+
+
+def policy_files(target: str, folder: Path | None = None) -> tuple[Path, Path, Path]:
+    """(weights .pt, metadata .json, model card .md) of the shipped navigator for `target`."""
+    folder = Path(folder) if folder is not None else assets_root() / POLICY_FOLDER
+    stem = folder / f"navigator_{target}"
+    return stem.with_suffix(".pt"), stem.with_suffix(".json"), stem.with_suffix(".md")
+
+
+def shipped_targets(folder: Path | None = None) -> tuple:
+    folder = Path(folder) if folder is not None else assets_root() / POLICY_FOLDER
+    return tuple(sorted(p.stem.removeprefix("navigator_") for p in folder.glob("navigator_*.pt")))
+
+
+def _spaces(meta: dict):
+    from gymnasium import spaces
+
+    observation = spaces.Dict({key: spaces.Box(-np.inf, np.inf, shape=tuple(shape), dtype=np.float32)
+                               for key, shape in meta["observation_shapes"].items()})
+    action = spaces.Box(-1.0, 1.0, shape=(int(meta["action_size"]),), dtype=np.float32)
+    return observation, action
+
+
+def _policy(meta: dict):
+    """SB3's SAC policy with the shipped network's shape (its actor is what is loaded)."""
+    from stable_baselines3.sac.policies import MultiInputPolicy
+
+    from cathsim_dmc.learning.networks import ENNExtractor
+
+    observation, action = _spaces(meta)
+    return MultiInputPolicy(observation, action, lr_schedule=lambda _: 0.0, net_arch=list(meta["net_arch"]),
+                            features_extractor_class=ENNExtractor, share_features_extractor=False)
+
+
+class PretrainedActor:
+    """The shipped actor as a model with SB3's `predict(observation, deterministic)`."""
+
+    def __init__(self, weights: Path, meta: dict):
+        import torch
+
+        self.meta = meta
+        self.policy = _policy(meta)
+        state = torch.load(weights, map_location="cpu", weights_only=True)
+        self.policy.actor.load_state_dict(state)
+        self.policy.set_training_mode(False)
+
+    def predict(self, observation, deterministic: bool = True):
+        return self.policy.predict(observation, deterministic=deterministic)
+
+
+def load_pretrained(target: str, folder: Path | None = None):
+    """The shipped navigator for `target` as a `CheckpointPolicy` (ValueError naming the
+    targets that have one)."""
+    weights, meta_path, _ = policy_files(target, folder)
+    if not weights.is_file():
+        raise ValueError(f"no pretrained navigator for task={target!r}; shipped: {list(shipped_targets(folder))}")
+    meta = json.loads(meta_path.read_text())
+    return CheckpointPolicy(PretrainedActor(weights, meta), meta["obs"], meta.get("image_options"),
+                            meta.get("env_options"), path=weights)
+
+
+
+def make_policy(name: str, seed: int = 0, task: str | None = None):
+    """A built-in policy by name (`cathsim_dmc.control.policies.BUILTIN_POLICIES`), the shipped
+    navigator for `task` ("pretrained", `cathsim_dmc.learning.pretrained`), or a trained agent by
+    the path of its checkpoint or run folder."""
+    if name in BUILTIN_POLICIES:
+        return make_builtin_policy(name, seed=seed)
+    if name == PRETRAINED and not Path(name).exists():
+        if task is None:
+            raise ValueError("policy=pretrained needs the task (bca or lcca) it navigates to")
+        return load_pretrained(task)
+    if Path(name).exists():
+        return load_checkpoint_policy(name)
+    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, "
+                     f"{PRETRAINED!r}, nor a checkpoint path")

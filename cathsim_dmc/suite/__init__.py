@@ -1,0 +1,1 @@
+"""The Gymnasium adapter on the task suite (cathsim_dmc.tasks)."""

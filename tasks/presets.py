@@ -1,0 +1,69 @@
+"""Observation presets: named settings that turn the task's observables on and off.
+
+Each preset is one file of conf/obs/, read by the command-line tools (Hydra's `obs=`
+group) and by the Python API (`tasks.load(obs=...)`) alike.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cathsim_dmc.core.checks import check_number
+from cathsim_dmc.core.shipped import conf_root
+from cathsim_dmc.sim.render import IMAGE_STYLES, MAX_RENDER_PX, RENDERERS, ObservationSettings, TopView
+
+# What a preset can enable (the task has a few more, enabled one by one as extra observations).
+PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel", "roadmap", "robot_state",
+                      "target_depth_time")
+
+
+def load_presets(folder) -> dict:
+    """name -> ObservationSettings of every preset file in `folder` (conf/obs/*.yaml).
+
+    A preset file is the one definition of its preset, for the command-line tools (Hydra's
+    `obs=` group) and the Python API (`tasks.load(obs=...)`) alike: `name`, the
+    `observables` it enables, and optionally `renderer`, `style`, `image_size`, `lao_deg`,
+    `tracking_noise_m`, `registration_error_m`.
+    """
+    import yaml
+
+    presets = {}
+    for path in sorted(Path(folder).glob("*.yaml")):
+        spec = yaml.safe_load(path.read_text()) or {}
+        unknown = sorted(set(spec.get("observables") or ()) - set(PRESET_OBSERVABLES))
+        if spec.get("name") != path.stem or not spec.get("observables") or unknown:
+            raise ValueError(f"{path}: a preset needs name: {path.stem} and observables from "
+                             f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})")
+        options = {key: spec[key] for key in ("renderer", "style", "image_size", "lao_deg",
+                                                 "tracking_noise_m", "registration_error_m")
+                   if spec.get(key) is not None}
+        presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
+    return presets
+
+
+OBSERVATION_PRESETS = load_presets(conf_root() / "obs")
+
+
+def observation_settings(preset: str, **overrides) -> ObservationSettings:
+    if preset not in OBSERVATION_PRESETS:
+        raise ValueError(f"obs={preset!r} is not a preset; choose one of {sorted(OBSERVATION_PRESETS)}")
+    settings = OBSERVATION_PRESETS[preset]
+    if overrides:
+        settings = ObservationSettings(**{**settings.__dict__, **overrides})
+    check_number("image_size", settings.image_size, 1, whole=True)  # 0 divides by zero in the renderer
+    if settings.style not in IMAGE_STYLES:
+        raise ValueError(f"image style={settings.style!r}; choose one of {IMAGE_STYLES}")
+    if settings.renderer not in RENDERERS:
+        raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
+    largest = TopView.largest_image_size(settings)
+    if largest is not None and settings.image_size > largest:
+        raise ValueError(f"image_size={settings.image_size!r} is too large for the {settings.renderer} renderer "
+                         f"and the {settings.style} style (its GL renders are supersampled within the "
+                         f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}")
+    if not settings.noise_std >= 0:
+        raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
+    for key in ("tracking_noise_m", "registration_error_m"):
+        check_number(key, getattr(settings, key), 0)  # a standard deviation in metres
+    if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
+        raise ValueError(f"lao_deg={settings.lao_deg!r} must be between -90 and 90 (degrees; 0 = AP)")
+    return settings
