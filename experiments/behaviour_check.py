@@ -27,16 +27,23 @@ from pathlib import Path
 import numpy as np
 
 TRAIN_OVERRIDES = [
-    "task=bca", "aorta=type1", "seed=0", "trainer.total_timesteps=300", "algo.learning_starts=100",
-    "trainer.eval_every=100", "trainer.eval_episodes=1", "trainer.final_eval_episodes=2",
-    "trainer.video=false", "trainer.progress_bar=false",
+    "task=bca",
+    "aorta=type1",
+    "seed=0",
+    "trainer.total_timesteps=300",
+    "algo.learning_starts=100",
+    "trainer.eval_every=100",
+    "trainer.eval_episodes=1",
+    "trainer.final_eval_episodes=2",
+    "trainer.video=false",
+    "trainer.progress_bar=false",
 ]
 
 
 def expert_episodes() -> dict:
-    from cathsim_dmc.suite.gym import CathSimEnv
-    from cathsim_dmc.core.shipped import available_aortas
     from cathsim_dmc.control.policies import make_policy
+    from cathsim_dmc.core.shipped import available_aortas
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     arrays = {}
     for aorta in available_aortas():
@@ -99,8 +106,15 @@ def navigator_episodes() -> dict:
 
     arrays = {}
     for target in ("bca", "lcca"):
-        argv = ["cathsim-eval", "policy=pretrained", f"task={target}", "aorta=type2", "episodes=1", "seed=0",
-                "video=false"]
+        argv = [
+            "cathsim-eval",
+            "policy=pretrained",
+            f"task={target}",
+            "aorta=type2",
+            "episodes=1",
+            "seed=0",
+            "video=false",
+        ]
         actions, rewards = _recorded_tool_run(cli_eval.main, argv)
         print(f"navigator {target}: {len(rewards)} steps, return {rewards.sum():.6f}", flush=True)
         arrays[f"navigator/{target}/actions"] = actions

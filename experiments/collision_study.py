@@ -112,7 +112,8 @@ def build_coarse(name: str, root: pathlib.Path) -> pathlib.Path:
         return folder
     edge, crease = COARSE[name]
     params = study_params_class()(**dataclasses.asdict(PRESETS["type1"])).replace(
-        name=f"type1_{name}", edge_length_m=edge, max_dihedral_deg=crease)
+        name=f"type1_{name}", edge_length_m=edge, max_dihedral_deg=crease
+    )
     build_asset(params, folder)
     return folder
 
@@ -135,17 +136,28 @@ def surface_deviation(folder: pathlib.Path, samples: int = 200_000, seed: int = 
     pick = rng.choice(len(f), samples, p=area / area.sum())
     bary = rng.dirichlet(np.ones(3), size=samples)
     d = grid(np.einsum("nk,nkj->nj", bary, tri[pick])) * 1e3
-    return dict(mean_abs_mm=float(np.mean(np.abs(d))), p99_abs_mm=float(np.percentile(np.abs(d), 99)),
-                max_inward_mm=float(max(0.0, -d.min())), max_outward_mm=float(max(0.0, d.max())))
+    return dict(
+        mean_abs_mm=float(np.mean(np.abs(d))),
+        p99_abs_mm=float(np.percentile(np.abs(d), 99)),
+        max_inward_mm=float(max(0.0, -d.min())),
+        max_outward_mm=float(max(0.0, d.max())),
+    )
 
 
 def validation(folder: pathlib.Path) -> dict:
     from cathsim_dmc.anatomy.validate import validate_asset
 
     r = validate_asset(folder)
-    return dict(pieces=r.hulls, holes=r.holes, shell_samples=r.shell_samples,
-                max_intrusion_mm=max(0.0, r.max_intrusion_m) * 1e3, min_clearance_mm=r.min_clearance_m * 1e3,
-                ok=r.ok, problems=r.problems, summary=r.summary())
+    return dict(
+        pieces=r.hulls,
+        holes=r.holes,
+        shell_samples=r.shell_samples,
+        max_intrusion_mm=max(0.0, r.max_intrusion_m) * 1e3,
+        min_clearance_mm=r.min_clearance_m * 1e3,
+        ok=r.ok,
+        problems=r.problems,
+        summary=r.summary(),
+    )
 
 
 # ----------------------------------------------------------------------------
@@ -193,8 +205,9 @@ def sdf_wall(octree_depth):
         mesh.uservert, mesh.userface = v.ravel(), f.ravel()
         if octree_depth is not None:
             mesh.octree_maxdepth = int(octree_depth)
-        geom = spec.worldbody.add_geom(name=prefix + "hull0", type=mujoco.mjtGeom.mjGEOM_SDF,
-                                       meshname=prefix + "wallsdf")
+        geom = spec.worldbody.add_geom(
+            name=prefix + "hull0", type=mujoco.mjtGeom.mjGEOM_SDF, meshname=prefix + "wallsdf"
+        )
         for key, value in self._wall.items():
             setattr(geom, key, value)
         vis = spec.add_mesh(name=prefix + "lumen")
@@ -259,12 +272,21 @@ def probe(names, folders, args) -> list:
         env = load_env(name, folders)
         build_s = time.perf_counter() - t0
         model = env.physics.model.ptr
-        entries[name] = dict(env=env, model=model, data=mujoco.MjData(model), masks=masks(env), build_s=build_s,
-                             ngeom_wall=int(masks(env)[1].sum()), noct=int(model.noct),
-                             oct_depth=int(model.oct_depth.max()) if model.noct else None)
-        print(f"built {name}: {entries[name]['ngeom_wall']} wall geoms, {build_s:.1f} s"
-              + (f", octree {model.noct} nodes, depth {entries[name]['oct_depth']}" if model.noct else ""),
-              flush=True)
+        entries[name] = dict(
+            env=env,
+            model=model,
+            data=mujoco.MjData(model),
+            masks=masks(env),
+            build_s=build_s,
+            ngeom_wall=int(masks(env)[1].sum()),
+            noct=int(model.noct),
+            oct_depth=int(model.oct_depth.max()) if model.noct else None,
+        )
+        print(
+            f"built {name}: {entries[name]['ngeom_wall']} wall geoms, {build_s:.1f} s"
+            + (f", octree {model.noct} nodes, depth {entries[name]['oct_depth']}" if model.noct else ""),
+            flush=True,
+        )
     baseline = names[0]
     states = save_states(entries[baseline]["env"], args.at, np.array(args.action))
     rows = []
@@ -296,20 +318,32 @@ def probe(names, folders, args) -> list:
         base_t, base_c = statistics.median(times[baseline]), statistics.median(coll[baseline])
         for name in names:
             s = seen[name]
-            row = dict(state=at, wall=name, time_ratio=statistics.median(times[name]) / base_t,
-                       step_ms=1e3 * statistics.median(times[name]) / args.steps,
-                       collision_ratio=statistics.median(coll[name]) / base_c,
-                       collision_us=1e6 * statistics.median(coll[name]),
-                       tip_off_mm=1e3 * float(np.linalg.norm(s["tip"] - seen[baseline]["tip"])),
-                       deepest_mm=1e3 * s["depth_m"], force_n=s["force_n"], contacts=s["contacts"],
-                       finite=s["finite"])
+            row = dict(
+                state=at,
+                wall=name,
+                time_ratio=statistics.median(times[name]) / base_t,
+                step_ms=1e3 * statistics.median(times[name]) / args.steps,
+                collision_ratio=statistics.median(coll[name]) / base_c,
+                collision_us=1e6 * statistics.median(coll[name]),
+                tip_off_mm=1e3 * float(np.linalg.norm(s["tip"] - seen[baseline]["tip"])),
+                deepest_mm=1e3 * s["depth_m"],
+                force_n=s["force_n"],
+                contacts=s["contacts"],
+                finite=s["finite"],
+            )
             rows.append(row)
-            print(f"| {at} | {name} | {row['time_ratio']:.2f} | {row['collision_ratio']:.2f} "
-                  f"({row['collision_us']:.0f} us) | {row['tip_off_mm']:.2f} | {row['deepest_mm']:.2f} | "
-                  f"{row['force_n']:.3f} | {row['contacts']:.1f} |" + ("" if row["finite"] else " diverged"),
-                  flush=True)
-    builds = {name: dict(build_s=e["build_s"], wall_geoms=e["ngeom_wall"], octree_nodes=e["noct"],
-                         octree_depth=e["oct_depth"]) for name, e in entries.items()}
+            print(
+                f"| {at} | {name} | {row['time_ratio']:.2f} | {row['collision_ratio']:.2f} "
+                f"({row['collision_us']:.0f} us) | {row['tip_off_mm']:.2f} | {row['deepest_mm']:.2f} | "
+                f"{row['force_n']:.3f} | {row['contacts']:.1f} |" + ("" if row["finite"] else " diverged"),
+                flush=True,
+            )
+    builds = {
+        name: dict(
+            build_s=e["build_s"], wall_geoms=e["ngeom_wall"], octree_nodes=e["noct"], octree_depth=e["oct_depth"]
+        )
+        for name, e in entries.items()
+    }
     for e in entries.values():
         e["env"].close()
     return rows, builds
@@ -333,19 +367,34 @@ def expert_runs(names, folders, episodes: int, seed: int, sdf_episodes: int) -> 
                     done = terminated or truncated
                     escaped |= bool(info["escaped"])
                     peak = max(peak, float(info["mean_contact_force_n"]))
-                runs.append(dict(seed=seed + episode, success=bool(info["success"]), escaped=escaped,
-                                 diverged=bool(info["diverged"]), steps=int(info["step"]), peak_mean_force_n=peak))
+                runs.append(
+                    dict(
+                        seed=seed + episode,
+                        success=bool(info["success"]),
+                        escaped=escaped,
+                        diverged=bool(info["diverged"]),
+                        steps=int(info["step"]),
+                        peak_mean_force_n=peak,
+                    )
+                )
             seconds = time.perf_counter() - begin
             env.close()
             out[f"{name}/{target}"] = dict(
-                successes=sum(r["success"] for r in runs), escapes=sum(r["escaped"] for r in runs),
-                divergences=sum(r["diverged"] for r in runs), episodes=len(runs),
+                successes=sum(r["success"] for r in runs),
+                escapes=sum(r["escaped"] for r in runs),
+                divergences=sum(r["diverged"] for r in runs),
+                episodes=len(runs),
                 mean_steps=float(np.mean([r["steps"] for r in runs])),
-                control_steps_per_s=sum(r["steps"] for r in runs) / seconds, runs=runs)
+                control_steps_per_s=sum(r["steps"] for r in runs) / seconds,
+                runs=runs,
+            )
             o = out[f"{name}/{target}"]
-            print(f"expert {name} {target}: {o['successes']}/{o['episodes']} reached, {o['escapes']} escaped, "
-                  f"{o['divergences']} diverged, {o['mean_steps']:.0f} steps, {o['control_steps_per_s']:.0f} "
-                  f"control steps/s", flush=True)
+            print(
+                f"expert {name} {target}: {o['successes']}/{o['episodes']} reached, {o['escapes']} escaped, "
+                f"{o['divergences']} diverged, {o['mean_steps']:.0f} steps, {o['control_steps_per_s']:.0f} "
+                f"control steps/s",
+                flush=True,
+            )
     return out
 
 
@@ -359,8 +408,12 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=100, help="raw mj_step calls per run (5 ms each)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--episodes", type=int, default=5, help="expert episodes per target (0: none)")
-    parser.add_argument("--sdf-episodes", type=int, default=1,
-                        help="expert episodes per target with an SDF wall (about 2-4 control steps/s)")
+    parser.add_argument(
+        "--sdf-episodes",
+        type=int,
+        default=1,
+        help="expert episodes per target with an SDF wall (about 2-4 control steps/s)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=pathlib.Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
@@ -381,21 +434,35 @@ def main(argv=None) -> None:
             continue
         walls.setdefault(name, {}).update(validation=validation(folder), deviation=surface_deviation(folder))
         v, d = walls[name]["validation"], walls[name]["deviation"]
-        print(f"{name}: {v['pieces']} pieces, {v['holes']} holes of {v['shell_samples']}, intrusion "
-              f"{v['max_intrusion_mm']:.3f} mm, clearance {v['min_clearance_mm']:.2f} mm, "
-              f"{'valid' if v['ok'] else 'INVALID: ' + '; '.join(v['problems'])}; lumen off the exact surface: "
-              f"mean {d['mean_abs_mm']:.3f}, p99 {d['p99_abs_mm']:.3f} mm, {d['max_inward_mm']:.2f} mm inward at "
-              f"most", flush=True)
+        print(
+            f"{name}: {v['pieces']} pieces, {v['holes']} holes of {v['shell_samples']}, intrusion "
+            f"{v['max_intrusion_mm']:.3f} mm, clearance {v['min_clearance_mm']:.2f} mm, "
+            f"{'valid' if v['ok'] else 'INVALID: ' + '; '.join(v['problems'])}; lumen off the exact surface: "
+            f"mean {d['mean_abs_mm']:.3f}, p99 {d['p99_abs_mm']:.3f} mm, {d['max_inward_mm']:.2f} mm inward at "
+            f"most",
+            flush=True,
+        )
 
-    print(f"bca/type1, fast, action {args.action}, {args.steps} raw mj_step per run, median of {args.repeats} "
-          f"interleaved runs; baseline {names[0]}")
-    print("| state | wall | step time / baseline | collision / baseline | tip off baseline (mm) | deepest (mm) "
-          "| mean wall force (N) | wall contacts |")
+    print(
+        f"bca/type1, fast, action {args.action}, {args.steps} raw mj_step per run, median of {args.repeats} "
+        f"interleaved runs; baseline {names[0]}"
+    )
+    print(
+        "| state | wall | step time / baseline | collision / baseline | tip off baseline (mm) | deepest (mm) "
+        "| mean wall force (N) | wall contacts |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     rows, builds = probe(names, folders, args)
     experts = expert_runs(names, folders, args.episodes, args.seed, args.sdf_episodes)
-    result = dict(date=time.strftime("%Y-%m-%d"), mujoco=mujoco.__version__, args=vars(args) | {"out": str(args.out)},
-                  walls=walls, builds=builds, probe=rows, expert=experts)
+    result = dict(
+        date=time.strftime("%Y-%m-%d"),
+        mujoco=mujoco.__version__,
+        args=vars(args) | {"out": str(args.out)},
+        walls=walls,
+        builds=builds,
+        probe=rows,
+        expert=experts,
+    )
     path = args.out / "collision_study.json"
     path.write_text(json.dumps(result, indent=1, default=str))
     print(f"wrote {path}")

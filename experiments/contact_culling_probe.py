@@ -39,8 +39,8 @@ def lumen_mesh(model, data, geom_name: str) -> trimesh.Trimesh:
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, geom_name)
     mesh = model.geom_dataid[geom]
     vert0, face0 = model.mesh_vertadr[mesh], model.mesh_faceadr[mesh]
-    vertices = model.mesh_vert[vert0:vert0 + model.mesh_vertnum[mesh]].astype(float)
-    faces = model.mesh_face[face0:face0 + model.mesh_facenum[mesh]]
+    vertices = model.mesh_vert[vert0 : vert0 + model.mesh_vertnum[mesh]].astype(float)
+    faces = model.mesh_face[face0 : face0 + model.mesh_facenum[mesh]]
     vertices = vertices @ data.geom_xmat[geom].reshape(3, 3).T + data.geom_xpos[geom]
     return trimesh.Trimesh(vertices, faces, process=False)
 
@@ -67,16 +67,23 @@ def main() -> None:
     env.reset()
     model, data = env.physics.model.ptr, env.physics.data.ptr
     mesh = lumen_mesh(model, data, f"{env.task.aorta.mjcf_model.model}/lumen")
-    wire = np.flatnonzero(np.isin(model.geom_bodyid, env.physics.bind(env.task.guidewire.segments).element_id)
-                          & (model.geom_contype > 0))
+    wire = np.flatnonzero(
+        np.isin(model.geom_bodyid, env.physics.bind(env.task.guidewire.segments).element_id) & (model.geom_contype > 0)
+    )
     wire_bodies = model.geom_bodyid[wire]
     half_length, radius = model.geom_size[wire, 1], model.geom_size[wire, 0]
     along = np.linspace(-1.0, 1.0, 15)
-    bits = [getattr(model, name).copy() for name in ("geom_contype", "geom_conaffinity", "body_contype", "body_conaffinity")]
+    bits = [
+        getattr(model, name).copy() for name in ("geom_contype", "geom_conaffinity", "body_contype", "body_conaffinity")
+    ]
 
     def collide_without(cull: np.ndarray) -> tuple[float, int]:
-        for name, ids in (("geom_contype", wire), ("geom_conaffinity", wire),
-                          ("body_contype", wire_bodies), ("body_conaffinity", wire_bodies)):
+        for name, ids in (
+            ("geom_contype", wire),
+            ("geom_conaffinity", wire),
+            ("body_contype", wire_bodies),
+            ("body_conaffinity", wire_bodies),
+        ):
             getattr(model, name)[ids[cull]] = 0
         seconds = median_time_s(lambda: mujoco.mj_collision(model, data), 30, args.repeats)
         contacts = data.ncon
@@ -91,13 +98,17 @@ def main() -> None:
             env.step(np.array([1.0, 0.2]))
             step += 1
         mujoco.mj_forward(model, data)
-        touching = np.isin(wire, data.contact.geom[:data.ncon].ravel())
-        points = (data.geom_xpos[wire][:, None, :] + along[None, :, None] * half_length[:, None, None]
-                  * data.geom_xmat[wire][:, None, 6:9]).reshape(-1, 3)
+        touching = np.isin(wire, data.contact.geom[: data.ncon].ravel())
+        points = (
+            data.geom_xpos[wire][:, None, :]
+            + along[None, :, None] * half_length[:, None, None] * data.geom_xmat[wire][:, None, 6:9]
+        ).reshape(-1, 3)
         _, distance, _ = trimesh.proximity.closest_point(mesh, points)
         clearance = distance.reshape(len(wire), -1).min(axis=1) - radius
-        print(f"state after {at} control steps: {data.ncon} contacts, {touching.sum()} of {len(wire)} wire "
-              f"capsules in contact, clearance <= 0.3 mm for {(clearance <= 0.3e-3).sum()}")
+        print(
+            f"state after {at} control steps: {data.ncon} contacts, {touching.sum()} of {len(wire)} wire "
+            f"capsules in contact, clearance <= 0.3 mm for {(clearance <= 0.3e-3).sum()}"
+        )
         base, _ = collide_without(np.zeros(len(wire), dtype=bool))
         rows = [("oracle: every capsule without a contact", ~touching)]
         rows += [(f"clearance > {c * 1e3:.1f} mm", clearance > c) for c in CLEARANCES_M]
@@ -122,8 +133,10 @@ def main() -> None:
             seconds = median_time_s(run, 1, args.repeats) / args.steps
             end_states[workers] = threaded.qpos.copy()
             same = np.array_equal(end_states[workers], end_states[0])
-            print(f"  mj_step with {workers} worker threads: {seconds * 1e6:.0f} us per step, "
-                  f"end state {'identical to' if same else 'differs from'} the single-threaded run")
+            print(
+                f"  mj_step with {workers} worker threads: {seconds * 1e6:.0f} us per step, "
+                f"end state {'identical to' if same else 'differs from'} the single-threaded run"
+            )
 
 
 if __name__ == "__main__":

@@ -27,12 +27,12 @@ import time
 
 import numpy as np
 
-from cathsim_dmc.evaluation import fidelity
-from cathsim_dmc.suite.gym import CathSimEnv
-from cathsim_dmc.evaluation.metrics import polyline_length_m
-from cathsim_dmc.core.shipped import available_aortas
-from cathsim_dmc.sim.physics import PHYSICS_SETTINGS
 from cathsim_dmc.control.policies import make_policy
+from cathsim_dmc.core.shipped import available_aortas
+from cathsim_dmc.evaluation import fidelity
+from cathsim_dmc.evaluation.metrics import polyline_length_m
+from cathsim_dmc.sim.physics import PHYSICS_SETTINGS
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 def wire_checks(setting: str) -> dict:
@@ -45,7 +45,9 @@ def wire_checks(setting: str) -> dict:
     for margin in (0.0, 1e-3):
         push = fidelity.wall_push(margin, setting, push_n=1.0)
         out[f"1 N push read by the wall, margin {1e3 * margin:.0f} mm (N)"] = push.total_n
-        out[f"tip end past the wall face, margin {1e3 * margin:.0f} mm (mm)"] = 1e3 * (push.tip_end_m - fidelity.WALL_FACE_M)
+        out[f"tip end past the wall face, margin {1e3 * margin:.0f} mm (mm)"] = 1e3 * (
+            push.tip_end_m - fidelity.WALL_FACE_M
+        )
     response = fidelity.insertion_response(setting)
     out["insertion: tip/carriage advance inserting"] = response.insert_ratio
     out["insertion: tip/carriage advance retracting"] = response.retract_ratio
@@ -74,8 +76,16 @@ def expert_episodes(setting: str, aorta: str, target: str, seeds: int) -> dict:
         lengths.append(info["step"])
         paths.append(polyline_length_m(tips))
     env.close()
-    return dict(successes=successes, episodes=seeds, escapes=escapes, divergences=divergences, steps=lengths,
-                path_m=paths, mean_n=means, peak_n=peaks)
+    return dict(
+        successes=successes,
+        episodes=seeds,
+        escapes=escapes,
+        divergences=divergences,
+        steps=lengths,
+        path_m=paths,
+        mean_n=means,
+        peak_n=peaks,
+    )
 
 
 def percentiles(values, qs=(50, 99, 100)) -> str:
@@ -115,14 +125,22 @@ def main(argv=None) -> int:
         if not key.startswith("_"):
             print(f"| {key} | " + " | ".join(f"{wire[s][key]:.4g}" for s in args.settings) + " |")
     first = np.asarray(wire[args.settings[0]]["_insertion_tip_m"])
-    print("| insertion: tip's distance from the first setting's (mm) | " + " | ".join(
-        f"{1e3 * np.linalg.norm(np.asarray(wire[s]['_insertion_tip_m']) - first):.2f}" for s in args.settings) + " |")
+    print(
+        "| insertion: tip's distance from the first setting's (mm) | "
+        + " | ".join(
+            f"{1e3 * np.linalg.norm(np.asarray(wire[s]['_insertion_tip_m']) - first):.2f}" for s in args.settings
+        )
+        + " |"
+    )
 
     print("\n| target/aorta | " + " | ".join(f"`{s}` success" for s in args.settings) + " |")
     print("|---|" + "---|" * len(args.settings))
     for key in expert[args.settings[0]]:
-        print(f"| {key} | " + " | ".join(
-            f"{expert[s][key]['successes']}/{expert[s][key]['episodes']}" for s in args.settings) + " |")
+        print(
+            f"| {key} | "
+            + " | ".join(f"{expert[s][key]['successes']}/{expert[s][key]['episodes']}" for s in args.settings)
+            + " |"
+        )
 
     def pooled(s, field):
         return [v for row in expert[s].values() for v in (row[field] if isinstance(row[field], list) else [row[field]])]

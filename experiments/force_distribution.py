@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cathsim_dmc.control.policies import AdversarialPolicy, make_policy
 from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.suite.gym import CathSimEnv
-from cathsim_dmc.control.policies import AdversarialPolicy, make_policy
 
 PERCENTILES = (50, 99, 99.9, 100)
 
@@ -95,7 +95,7 @@ class PhysicsStepProbe:
                 count = int(keep.sum())
                 # Past the constraint surface: a wall with a contact margin starts acting
                 # that far from its pieces.
-                inside = data.contact.includemargin[:data.ncon][keep] - data.contact.dist[:data.ncon][keep]
+                inside = data.contact.includemargin[: data.ncon][keep] - data.contact.dist[: data.ncon][keep]
                 depth = float(inside.max()) if count else 0.0
             else:
                 count, depth = 0, 0.0
@@ -122,9 +122,17 @@ def _record_step(samples: Samples, probe: PhysicsStepProbe, info: dict, where: d
     samples.divergences += int(info["diverged"])
     if len(forces):
         i = int(forces.argmax())
-        samples.add_event(dict(where, substep=i + 1, force_n=float(forces[i]), contacts=int(counts[i]),
-                               depth_mm=1e3 * float(depths[i]), step_mean_n=float(info["mean_contact_force_n"])),
-                          keep)
+        samples.add_event(
+            dict(
+                where,
+                substep=i + 1,
+                force_n=float(forces[i]),
+                contacts=int(counts[i]),
+                depth_mm=1e3 * float(depths[i]),
+                step_mean_n=float(info["mean_contact_force_n"]),
+            ),
+            keep,
+        )
 
 
 def run_expert(aorta: str, target: str, episodes: int, env_kwargs: dict, keep: int, seed: int = 0) -> Samples:
@@ -146,8 +154,9 @@ def run_expert(aorta: str, target: str, episodes: int, env_kwargs: dict, keep: i
     return samples
 
 
-def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: int = 0, report_every: int = 0,
-                    report=None) -> Samples:
+def run_adversarial(
+    aorta: str, steps: int, env_kwargs: dict, keep: int, seed: int = 0, report_every: int = 0, report=None
+) -> Samples:
     """`steps` adversarial control steps; every `report_every` steps `report(samples)` sees
     the samples so far (a long sweep keeps its partial results)."""
     # Long episodes, so that bursts reach the end of the stroke and buckle the wire.
@@ -162,7 +171,9 @@ def run_adversarial(aorta: str, steps: int, env_kwargs: dict, keep: int, seed: i
     policy = AdversarialPolicy(seed)
     for k in range(1, steps + 1):
         _, _, terminated, truncated, info = env.step(policy())
-        _record_step(samples, probe, info, dict(seed=seed, adversarial_step=k, mode=policy.mode, step=info["step"]), keep)
+        _record_step(
+            samples, probe, info, dict(seed=seed, adversarial_step=k, mode=policy.mode, step=info["step"]), keep
+        )
         if terminated or truncated:
             env.reset()
             probe.attach()
@@ -180,16 +191,24 @@ def percentiles(values) -> list:
 
 def summary(samples: Samples) -> dict:
     return dict(
-        source=samples.source, aorta=samples.aorta, episodes=samples.episodes, successes=samples.successes,
-        physics_steps=len(samples.physics_n), control_steps=len(samples.mean_n),
-        physics=percentiles(samples.physics_n), step_mean=percentiles(samples.mean_n),
+        source=samples.source,
+        aorta=samples.aorta,
+        episodes=samples.episodes,
+        successes=samples.successes,
+        physics_steps=len(samples.physics_n),
+        control_steps=len(samples.mean_n),
+        physics=percentiles(samples.physics_n),
+        step_mean=percentiles(samples.mean_n),
         end_of_step=percentiles(samples.end_n),
         end_of_step_zero_pct=100.0 * float(np.mean(np.asarray(samples.end_n) == 0.0)) if samples.end_n else None,
-        end_vs_mean_corr=(float(np.corrcoef(samples.end_n, samples.mean_n)[0, 1])
-                          if len(samples.end_n) > 2 and np.std(samples.end_n) > 0 and np.std(samples.mean_n) > 0
-                          else None),
+        end_vs_mean_corr=(
+            float(np.corrcoef(samples.end_n, samples.mean_n)[0, 1])
+            if len(samples.end_n) > 2 and np.std(samples.end_n) > 0 and np.std(samples.mean_n) > 0
+            else None
+        ),
         depth_mm=[1e3 * v for v in percentiles(samples.depth_m)],
-        escapes=samples.escapes, divergences=samples.divergences,
+        escapes=samples.escapes,
+        divergences=samples.divergences,
         events=sorted(samples.events, key=lambda e: -e["force_n"]),
     )
 
@@ -200,28 +219,88 @@ def _row(cells) -> str:
 
 def markdown(summaries: list, top: int) -> str:
     p = "/".join("max" if q == 100 else f"p{q:g}" for q in PERCENTILES)
-    lines = [_row(["Aorta", "Source", "Episodes (success)", "Physics steps",
-                   f"Physics step {p} (N)", f"Step mean {p} (N)", f"End of step {p} (N)",
-                   "End of step = 0", "corr(end, mean)", f"Deepest contact {p} (mm)", "Escaped / diverged"]),
-             "|" + "---|" * 11]
+    lines = [
+        _row(
+            [
+                "Aorta",
+                "Source",
+                "Episodes (success)",
+                "Physics steps",
+                f"Physics step {p} (N)",
+                f"Step mean {p} (N)",
+                f"End of step {p} (N)",
+                "End of step = 0",
+                "corr(end, mean)",
+                f"Deepest contact {p} (mm)",
+                "Escaped / diverged",
+            ]
+        ),
+        "|" + "---|" * 11,
+    ]
     fmt = lambda values: " / ".join(f"{v:.2f}" for v in values)  # noqa: E731
     for s in summaries:
         episodes = f"{s['episodes']}" + (f" ({s['successes']})" if s["source"].startswith("expert") else "")
         corr = "n/a" if s["end_vs_mean_corr"] is None else f"{s['end_vs_mean_corr']:.2f}"
-        lines.append(_row([s["aorta"], s["source"], episodes, f"{s['physics_steps']:,}", fmt(s["physics"]),
-                           fmt(s["step_mean"]), fmt(s["end_of_step"]), f"{s['end_of_step_zero_pct']:.0f}%", corr,
-                           " / ".join(f"{v:.3f}" for v in s["depth_mm"]), f"{s['escapes']} / {s['divergences']}"]))
-    events = sorted((dict(e, source=s["source"], aorta=s["aorta"]) for s in summaries for e in s["events"]),
-                    key=lambda e: -e["force_n"])[:top]
+        lines.append(
+            _row(
+                [
+                    s["aorta"],
+                    s["source"],
+                    episodes,
+                    f"{s['physics_steps']:,}",
+                    fmt(s["physics"]),
+                    fmt(s["step_mean"]),
+                    fmt(s["end_of_step"]),
+                    f"{s['end_of_step_zero_pct']:.0f}%",
+                    corr,
+                    " / ".join(f"{v:.3f}" for v in s["depth_mm"]),
+                    f"{s['escapes']} / {s['divergences']}",
+                ]
+            )
+        )
+    events = sorted(
+        (dict(e, source=s["source"], aorta=s["aorta"]) for s in summaries for e in s["events"]),
+        key=lambda e: -e["force_n"],
+    )[:top]
     if events:
-        lines += ["", "Largest physics-step forces:", "",
-                  _row(["Force (N)", "Aorta", "Source", "Where", "Physics step", "Contacts", "Deepest (mm)",
-                        "Its step mean (N)"]), "|" + "---|" * 8]
+        lines += [
+            "",
+            "Largest physics-step forces:",
+            "",
+            _row(
+                [
+                    "Force (N)",
+                    "Aorta",
+                    "Source",
+                    "Where",
+                    "Physics step",
+                    "Contacts",
+                    "Deepest (mm)",
+                    "Its step mean (N)",
+                ]
+            ),
+            "|" + "---|" * 8,
+        ]
         for e in events:
-            where = (f"adversarial step {e['adversarial_step']} ({e['mode']})" if "adversarial_step" in e
-                     else f"seed {e['seed']}, step {e['step']}")
-            lines.append(_row([f"{e['force_n']:.2f}", e["aorta"], e["source"], where, str(e["substep"]),
-                               str(e["contacts"]), f"{e['depth_mm']:.3f}", f"{e['step_mean_n']:.2f}"]))
+            where = (
+                f"adversarial step {e['adversarial_step']} ({e['mode']})"
+                if "adversarial_step" in e
+                else f"seed {e['seed']}, step {e['step']}"
+            )
+            lines.append(
+                _row(
+                    [
+                        f"{e['force_n']:.2f}",
+                        e["aorta"],
+                        e["source"],
+                        where,
+                        str(e["substep"]),
+                        str(e["contacts"]),
+                        f"{e['depth_mm']:.3f}",
+                        f"{e['step_mean_n']:.2f}",
+                    ]
+                )
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -250,8 +329,12 @@ def main(argv=None) -> int:
     parser.add_argument("--task", nargs="*", default=[], metavar="KEY=VALUE", help="Navigate overrides")
     parser.add_argument("--top", type=int, default=10, help="largest physics-step forces listed")
     parser.add_argument("--json", help="write the summaries (with the largest events) to this file")
-    parser.add_argument("--report-every", type=int, default=10_000,
-                        help="adversarial steps between progress lines (and, with --json, <json>.partial files)")
+    parser.add_argument(
+        "--report-every",
+        type=int,
+        default=10_000,
+        help="adversarial steps between progress lines (and, with --json, <json>.partial files)",
+    )
     args = parser.parse_args(argv)
     env_kwargs = _overrides(args.task)
     if args.guidewire:
@@ -263,24 +346,37 @@ def main(argv=None) -> int:
 
     def report_partial(samples):
         partial = summary(samples)
-        print(f"# {partial['aorta']} adversarial: {partial['control_steps']} steps so far, physics max "
-              f"{partial['physics'][-1]:.2f} N, escapes {partial['escapes']} ({time.time() - started:.0f} s)",
-              file=sys.stderr, flush=True)
+        print(
+            f"# {partial['aorta']} adversarial: {partial['control_steps']} steps so far, physics max "
+            f"{partial['physics'][-1]:.2f} N, escapes {partial['escapes']} ({time.time() - started:.0f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
         if args.json:
             with open(args.json + ".partial", "w") as f:
                 json.dump(dict(args=vars(args), summaries=[*summaries, partial]), f, indent=1)
 
     for aorta in args.aortas:
-        runs = [lambda t=t: run_expert(aorta, t, args.episodes, env_kwargs, args.top, args.seed)
-                for t in args.targets if args.episodes > 0]
+        runs = [
+            lambda t=t: run_expert(aorta, t, args.episodes, env_kwargs, args.top, args.seed)
+            for t in args.targets
+            if args.episodes > 0
+        ]
         if args.adversarial_steps > 0:
-            runs.append(lambda: run_adversarial(aorta, args.adversarial_steps, env_kwargs, args.top, args.seed,
-                                                args.report_every, report_partial))
+            runs.append(
+                lambda: run_adversarial(
+                    aorta, args.adversarial_steps, env_kwargs, args.top, args.seed, args.report_every, report_partial
+                )
+            )
         for run in runs:
             summaries.append(summary(run()))
             s = summaries[-1]
-            print(f"# {s['aorta']} {s['source']}: {s['control_steps']} control steps, physics max "
-                  f"{s['physics'][-1]:.2f} N ({time.time() - started:.0f} s)", file=sys.stderr, flush=True)
+            print(
+                f"# {s['aorta']} {s['source']}: {s['control_steps']} control steps, physics max "
+                f"{s['physics'][-1]:.2f} N ({time.time() - started:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
     print(markdown(summaries, args.top), end="")
     if args.json:
         with open(args.json, "w") as f:

@@ -29,7 +29,6 @@ from cathsim_dmc.anatomy import load_asset  # noqa: E402
 from cathsim_dmc.anatomy.sdf import signed_distance  # noqa: E402
 from cathsim_dmc.sim.model_check import validate_and_compile  # noqa: E402
 
-
 TARGETS = ("bca", "lcca")
 
 
@@ -55,17 +54,28 @@ def main(argv=None) -> int:
         away = np.linalg.norm(points - points[0], axis=1) > 0.015
         depth = signed_distance(a.visual_vertices.astype(float), a.visual_faces, points[away])
         return float(np.min(depth / radius[away]))
+
     script = pathlib.Path(sys.executable).with_name("cathsim-aorta")
     vec = lambda p: "[" + ",".join(f"{x:.4f}" for x in p) + "]"
-    print("| mesh | triangles in | what the importer did | CPU s (wall s) of the import with validation | holes | max intrusion mm "
-          "| path length / source (bca, lcca) | lumen depth / source radius, narrowest |")
+    print(
+        "| mesh | triangles in | what the importer did | CPU s (wall s) of the import with validation | holes "
+        "| max intrusion mm "
+        "| path length / source (bca, lcca) | lumen depth / source radius, narrowest |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name in args.variants:
         path, entry, sites = make_variant(name, args.out, voxel_m=args.voxel_mm * 1e-3)
         n_in = len(trimesh.load(path, process=False).faces)
         out = args.out / f"{name}_asset"
-        cmd = [str(script), "import", f"mesh={path}", f"entry={vec(entry)}", f"out={out}", "overwrite=true",
-               *[f"sites.{k}={vec(sites[k])}" for k in TARGETS]]
+        cmd = [
+            str(script),
+            "import",
+            f"mesh={path}",
+            f"entry={vec(entry)}",
+            f"out={out}",
+            "overwrite=true",
+            *[f"sites.{k}={vec(sites[k])}" for k in TARGETS],
+        ]
         cmd += args.options
         caps = cap_files(path)
         if caps:
@@ -76,15 +86,19 @@ def main(argv=None) -> int:
         if proc.returncode != 0:
             print(f"| {path.name} | {n_in} | failed: {proc.stderr.strip()} | {cpu:.0f} ({seconds:.0f}) | | | | |")
             continue
-        did = [line.split(": ", 2)[-1] if line.startswith("repair:") else line[len("note: "):]
-               for line in proc.stdout.splitlines() if line.startswith(("repair:", "note:"))
-               and "assuming" not in line and "entry direction" not in line]
+        did = [
+            line.split(": ", 2)[-1] if line.startswith("repair:") else line[len("note: ") :]
+            for line in proc.stdout.splitlines()
+            if line.startswith(("repair:", "note:")) and "assuming" not in line and "entry direction" not in line
+        ]
         asset = load_asset(out)
         report = validate_and_compile(asset)
         ratios = ", ".join(f"{length(asset, k) / length(src, k):.3f}" for k in TARGETS)
-        print(f"| {path.name} | {n_in:,} | {'; '.join(did)} | {cpu:.0f} ({seconds:.0f}) | {report.holes} | "
-              f"{report.max_intrusion_m * 1e3:.3f} | {ratios} | {min(kept(asset, k) for k in TARGETS):.2f} |",
-              flush=True)
+        print(
+            f"| {path.name} | {n_in:,} | {'; '.join(did)} | {cpu:.0f} ({seconds:.0f}) | {report.holes} | "
+            f"{report.max_intrusion_m * 1e3:.3f} | {ratios} | {min(kept(asset, k) for k in TARGETS):.2f} |",
+            flush=True,
+        )
     return 0
 
 

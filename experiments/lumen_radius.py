@@ -38,8 +38,8 @@ sys.path.insert(0, str(ROOT))
 
 from cathsim_dmc.anatomy import BRANCHES, arch_params, build_arch, build_asset, load_asset  # noqa: E402
 from cathsim_dmc.anatomy.asset import recorded_mesher_version  # noqa: E402
-from cathsim_dmc.anatomy.lumen import MESHER_VERSION, MESHER_VERSIONS  # noqa: E402
 from cathsim_dmc.anatomy.generate import sample_arch_params  # noqa: E402
+from cathsim_dmc.anatomy.lumen import MESHER_VERSION, MESHER_VERSIONS  # noqa: E402
 from cathsim_dmc.anatomy.sdf import unsigned_distance  # noqa: E402
 
 
@@ -71,14 +71,18 @@ def measure(folder) -> dict:
         pts, r_nom, past_mm, to_site = branch_samples(model, b)
         ratio = unsigned_distance(v, f, pts) / r_nom
         i = int(np.argmin(ratio))
-        row = {"nominal_mm": float(r_nom[0] * 1e3), "to_site": float(ratio[to_site].min()),
-               "branch": float(ratio.min()), "at_mm": float(past_mm[i]),
-               "radius_min_mm": float(ratio[i] * r_nom[i] * 1e3)}
+        row = {
+            "nominal_mm": float(r_nom[0] * 1e3),
+            "to_site": float(ratio[to_site].min()),
+            "branch": float(ratio.min()),
+            "at_mm": float(past_mm[i]),
+            "radius_min_mm": float(ratio[i] * r_nom[i] * 1e3),
+        }
         # meta.json's centreline radii past the ostium (path to the site).
         c = asset.centerlines[b]
         d_ost = np.linalg.norm(c.points - np.asarray(asset.meta["ostia"][b]), axis=1)
         beyond = np.zeros(len(d_ost), dtype=bool)
-        beyond[int(np.argmin(d_ost)):] = True
+        beyond[int(np.argmin(d_ost)) :] = True
         nearest = np.argmin(np.linalg.norm(c.points[beyond][:, None] - pts[None], axis=2), axis=1)
         row["meta"] = float((c.radius[beyond] / r_nom[nearest]).min())
         out[b] = row
@@ -92,8 +96,13 @@ def main(argv=None):
     ap.add_argument("--indices", type=int, nargs="*", help="only these pool indices")
     ap.add_argument("--out", default="/tmp/lumen_radius_pool", help="folder for the built arches")
     ap.add_argument("--assets", nargs="*", help="measure these asset folders or shipped names instead")
-    ap.add_argument("--mesher-version", type=int, choices=MESHER_VERSIONS, default=MESHER_VERSION,
-                    help="lumen mesher version the pool is built with (default: the current one)")
+    ap.add_argument(
+        "--mesher-version",
+        type=int,
+        choices=MESHER_VERSIONS,
+        default=MESHER_VERSION,
+        help="lumen mesher version the pool is built with (default: the current one)",
+    )
     ap.add_argument("--validate", action="store_true", help="also run validate_asset (holes, intrusion)")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args(argv)
@@ -101,6 +110,7 @@ def main(argv=None):
     rows = []
     if args.assets:
         from cathsim_dmc.core.shipped import resolve_asset
+
         jobs = [(str(a), pathlib.Path(resolve_asset(a)), None) for a in args.assets]
     else:
         idx = args.indices if args.indices else range(args.pool_size)
@@ -113,37 +123,58 @@ def main(argv=None):
             seconds = time.perf_counter() - t0
         m = measure(folder)
         meta = json.loads((folder / "meta.json").read_text())
-        row = {"arch": label, "type": meta.get("arch_type"), "mesher_version": recorded_mesher_version(meta),
-               "seconds": seconds,
-               "triangles": meta.get("counts", {}).get("triangles"),
-               "edge_mm": meta["params"]["edge_length_m"] * 1e3, "branches": m}
+        row = {
+            "arch": label,
+            "type": meta.get("arch_type"),
+            "mesher_version": recorded_mesher_version(meta),
+            "seconds": seconds,
+            "triangles": meta.get("counts", {}).get("triangles"),
+            "edge_mm": meta["params"]["edge_length_m"] * 1e3,
+            "branches": m,
+        }
         if args.validate:
             from cathsim_dmc.anatomy import validate_asset
+
             rep = validate_asset(folder)
             row["holes"], row["max_intrusion_mm"], row["ok"] = rep.holes, rep.max_intrusion_m * 1e3, rep.ok
         worst = min(m, key=lambda b: m[b]["branch"])
-        print(f"{label:>14} {row['type'] or '-':>3} v{row['mesher_version']} "
-              + (f"{seconds:5.1f}s " if seconds is not None else "   -   ")
-              + f"tri {row['triangles']} | "
-              + " | ".join(f"{b} r{m[b]['nominal_mm']:.2f} site {m[b]['to_site']:.2f} all {m[b]['branch']:.2f}"
-                           f" @{m[b]['at_mm']:.0f}mm meta {m[b]['meta']:.2f}" for b in BRANCHES)
-              + f" | worst {worst} {m[worst]['branch']:.2f}"
-              + (f" | holes {row['holes']} intr {max(row['max_intrusion_mm'], 0):.3f}mm ok {row['ok']}"
-                 if args.validate else ""), flush=True)
+        print(
+            f"{label:>14} {row['type'] or '-':>3} v{row['mesher_version']} "
+            + (f"{seconds:5.1f}s " if seconds is not None else "   -   ")
+            + f"tri {row['triangles']} | "
+            + " | ".join(
+                f"{b} r{m[b]['nominal_mm']:.2f} site {m[b]['to_site']:.2f} all {m[b]['branch']:.2f}"
+                f" @{m[b]['at_mm']:.0f}mm meta {m[b]['meta']:.2f}"
+                for b in BRANCHES
+            )
+            + f" | worst {worst} {m[worst]['branch']:.2f}"
+            + (
+                f" | holes {row['holes']} intr {max(row['max_intrusion_mm'], 0):.3f}mm ok {row['ok']}"
+                if args.validate
+                else ""
+            ),
+            flush=True,
+        )
         rows.append(row)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(rows, indent=1))
     times = [r["seconds"] for r in rows if r["seconds"] is not None]
     if times:
-        print(f"build seconds: median {statistics.median(times):.2f}, mean {statistics.mean(times):.2f}, "
-              f"max {max(times):.2f} over {len(times)}")
+        print(
+            f"build seconds: median {statistics.median(times):.2f}, mean {statistics.mean(times):.2f}, "
+            f"max {max(times):.2f} over {len(times)}"
+        )
     worst = sorted(rows, key=lambda r: min(x["branch"] for x in r["branches"].values()))
-    print("worst arches (min ratio over the branches): " + ", ".join(
-        f"{r['arch']}:{min(x['branch'] for x in r['branches'].values()):.2f}" for r in worst[:12]))
+    print(
+        "worst arches (min ratio over the branches): "
+        + ", ".join(f"{r['arch']}:{min(x['branch'] for x in r['branches'].values()):.2f}" for r in worst[:12])
+    )
     ratios = [min(x["branch"] for x in r["branches"].values()) for r in rows]
-    print(f"per-arch min ratio over {len(rows)}: min {min(ratios):.2f}, median {statistics.median(ratios):.2f}, "
-          f"max {max(ratios):.2f}; below 0.75: {sum(x < 0.75 for x in ratios)}, "
-          f"below 0.85: {sum(x < 0.85 for x in ratios)}")
+    print(
+        f"per-arch min ratio over {len(rows)}: min {min(ratios):.2f}, median {statistics.median(ratios):.2f}, "
+        f"max {max(ratios):.2f}; below 0.75: {sum(x < 0.75 for x in ratios)}, "
+        f"below 0.85: {sum(x < 0.85 for x in ratios)}"
+    )
 
 
 if __name__ == "__main__":

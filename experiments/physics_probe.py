@@ -15,8 +15,8 @@ after each step, in an untimed run). Times are ratios only: absolute speeds depe
 machine and its load.
 
 Variants: `accurate`, `fast` and `fast_field` (`cathsim_dmc.sim.physics.PHYSICS_SETTINGS`,
-compiled through `tasks.load`; `fast_field` has the distance-field wall), `accurate` with one of fast's options (`pgs10`: PGS at 10
-iterations, `dense`: dense Jacobian, `noslip0`: no noslip, `sleep`: sleep on), and
+compiled through `tasks.load`; `fast_field` has the distance-field wall), `accurate` with one
+of fast's options (`pgs10`: PGS at 10 iterations, `dense`: dense Jacobian, `noslip0`: no noslip, `sleep`: sleep on), and
 `wall_frame`: accurate with the wall in the aorta's attachment body, as before
 (the plain MJCF build, slow to build).
 """
@@ -31,8 +31,8 @@ import time
 import mujoco
 import numpy as np
 
-from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc import tasks
+from cathsim_dmc.sim import physics as cs_physics
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # time, qpos, qvel, act, warm start, controls, ...
 ONE_OPTION = {  # accurate with one of fast's settings
@@ -125,13 +125,18 @@ def observe(model, data, state, steps: int, wire, wall, tip_site: int) -> dict:
         # After mj_step, contacts and forces are those of the state before integration.
         forces.append(reader.total_n(data))
         n = data.ncon
-        keep = (wire[data.contact.geom[:n]].any(axis=1) & wall[data.contact.geom[:n]].any(axis=1))
+        keep = wire[data.contact.geom[:n]].any(axis=1) & wall[data.contact.geom[:n]].any(axis=1)
         inside = data.contact.includemargin[:n][keep] - data.contact.dist[:n][keep]
         depths.append(float(inside.max()) if keep.any() else 0.0)
         contacts.append(int(keep.sum()))
     mujoco.mj_kinematics(model, data)
-    return dict(tip=data.site_xpos[tip_site].copy(), force_n=float(np.mean(forces)), depth_m=max(depths),
-                contacts=float(np.mean(contacts)), finite=bool(np.isfinite(data.qpos).all()))
+    return dict(
+        tip=data.site_xpos[tip_site].copy(),
+        force_n=float(np.mean(forces)),
+        depth_m=max(depths),
+        contacts=float(np.mean(contacts)),
+        finite=bool(np.isfinite(data.qpos).all()),
+    )
 
 
 def main(argv=None) -> None:
@@ -142,8 +147,13 @@ def main(argv=None) -> None:
     parser.add_argument("--action", type=float, nargs=2, default=[1.0, 0.2], help="insertion, rotation in [-1, 1]")
     parser.add_argument("--steps", type=int, default=100, help="raw mj_step calls per run (5 ms each)")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--variants", nargs="+", default=["accurate", "fast", *ONE_OPTION], choices=VARIANTS,
-                        help="the first is the baseline")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        default=["accurate", "fast", *ONE_OPTION],
+        choices=VARIANTS,
+        help="the first is the baseline",
+    )
     args = parser.parse_args(argv)
 
     models, geoms, env = build_variants(args.variants, args.task, args.aorta)
@@ -151,14 +161,17 @@ def main(argv=None) -> None:
     datas = {name: mujoco.MjData(model) for name, model in models.items()}
     baseline = args.variants[0]
 
-    print(f"{args.task}/{args.aorta}, action {args.action}, {args.steps} raw mj_step per run, median of "
-          f"{args.repeats} interleaved runs; baseline {baseline}")
-    print("| state (control steps) | variant | time / baseline | tip off baseline (mm) | deepest contact (mm) "
-          "| mean wall force (N) | wall contacts |")
+    print(
+        f"{args.task}/{args.aorta}, action {args.action}, {args.steps} raw mj_step per run, median of "
+        f"{args.repeats} interleaved runs; baseline {baseline}"
+    )
+    print(
+        "| state (control steps) | variant | time / baseline | tip off baseline (mm) | deepest contact (mm) "
+        "| mean wall force (N) | wall contacts |"
+    )
     print("|---|---|---|---|---|---|---|")
     for at, state in states:
-        seen = {name: observe(models[name], datas[name], state, args.steps, *geoms[name])
-                for name in args.variants}
+        seen = {name: observe(models[name], datas[name], state, args.steps, *geoms[name]) for name in args.variants}
         times = {name: [] for name in args.variants}
         for repeat in range(args.repeats):
             shift = repeat % len(args.variants)
@@ -172,9 +185,12 @@ def main(argv=None) -> None:
         for name in args.variants:
             s = seen[name]
             off_mm = 1e3 * float(np.linalg.norm(s["tip"] - seen[baseline]["tip"]))
-            print(f"| {at} | {name} | {statistics.median(times[name]) / base_time:.2f} | {off_mm:.3f} | "
-                  f"{1e3 * s['depth_m']:.2f} | {s['force_n']:.3f} | {s['contacts']:.1f} |"
-                  + ("" if s["finite"] else " diverged"), flush=True)
+            print(
+                f"| {at} | {name} | {statistics.median(times[name]) / base_time:.2f} | {off_mm:.3f} | "
+                f"{1e3 * s['depth_m']:.2f} | {s['force_n']:.3f} | {s['contacts']:.1f} |"
+                + ("" if s["finite"] else " diverged"),
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -19,10 +19,10 @@ import time
 import numpy as np
 import trimesh
 
-from cathsim_dmc.sim import wall_field
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.validate import open_end_plane
 from cathsim_dmc.core.shipped import resolve_asset
+from cathsim_dmc.sim import wall_field
 
 
 def main(argv=None) -> None:
@@ -61,11 +61,15 @@ def main(argv=None) -> None:
     wrong_sign = int(np.sum(np.sign(read[clear]) == np.sign(side[clear])))  # the field is positive inside
     index_entries = int(np.prod(field[5:8]))
     blocks = (len(field) - wall_field.HEADER - index_entries) // wall_field.BLOCK**3
-    print(f"{args.aorta}: {len(lumen)} lumen triangles; field of {blocks} blocks ({field.nbytes / 1e6:.1f} MB), "
-          f"built in {built_s:.2f} s")
+    print(
+        f"{args.aorta}: {len(lumen)} lumen triangles; field of {blocks} blocks ({field.nbytes / 1e6:.1f} MB), "
+        f"built in {built_s:.2f} s"
+    )
     print(f"{len(points)} points 1.5 mm inside to 2.5 mm outside the lumen; {int((~known).sum())} read no value")
-    print("|field| - exact distance, p50 / p99 / max (mm): "
-          + " / ".join(f"{1e3 * v:.4f}" for v in np.percentile(error_m, [50, 99, 100])))
+    print(
+        "|field| - exact distance, p50 / p99 / max (mm): "
+        + " / ".join(f"{1e3 * v:.4f}" for v in np.percentile(error_m, [50, 99, 100]))
+    )
     print(f"sign against the nearest face, points more than 0.1 mm off it: {wrong_sign} of {int(clear.sum())} wrong")
 
 

@@ -90,10 +90,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("names", nargs="*", help=f"presets to build (default: all of {list(PRESETS)})")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "assets", help="output root folder")
-    parser.add_argument("--check", action="store_true",
-                        help="build into a temporary folder and compare with the assets under --out")
-    parser.add_argument("--validate", action="store_true",
-                        help="run cathsim_dmc.sim.model_check.validate_and_compile on each build")
+    parser.add_argument(
+        "--check", action="store_true", help="build into a temporary folder and compare with the assets under --out"
+    )
+    parser.add_argument(
+        "--validate", action="store_true", help="run cathsim_dmc.sim.model_check.validate_and_compile on each build"
+    )
     args = parser.parse_args(argv)
     names = args.names or list(PRESETS)
     unknown = [n for n in names if n not in PRESETS]
@@ -103,18 +105,26 @@ def main(argv=None) -> int:
     tmp = tempfile.TemporaryDirectory() if args.check else None
     root = pathlib.Path(tmp.name) if tmp else args.out
     status = 0
-    print(f"{'name':<15} {'arch-type distance':<27} {'tort. arch/branch':<18} {'triangles':>9} {'hulls':>6} "
-          f"{'build':>6} {'size':>8}")
+    print(
+        f"{'name':<15} {'arch-type distance':<27} {'tort. arch/branch':<18} {'triangles':>9} {'hulls':>6} "
+        f"{'build':>6} {'size':>8}"
+    )
     for name in names:
         r = build_asset(PRESETS[name], root / name, mesher_version=SHIPPED_MESHER_VERSIONS.get(name))
         t = r.tortuosity
         dist = f"{r.arch_type_distance_m * 1e3:4.1f} mm = {r.arch_type_ratio:.2f} CCA (type {r.arch_type})"
-        print(f"{name:<15} {dist:<27} {t['arch']:.3f} / {t['branches']:.4f}   {r.triangles:>9} {r.hulls:>6} "
-              f"{r.seconds:5.1f}s {folder_size(r.path) / 1e6:6.2f}MB")
+        print(
+            f"{name:<15} {dist:<27} {t['arch']:.3f} / {t['branches']:.4f}   {r.triangles:>9} {r.hulls:>6} "
+            f"{r.seconds:5.1f}s {folder_size(r.path) / 1e6:6.2f}MB"
+        )
         paths = ", ".join(f"{b} {r.path_length_m[b] * 100:.1f} cm" for b in BRANCHES)
-        extra = f"; max aortic diameter {r.max_aortic_diameter_m * 1e3:.1f} mm" if PRESETS[name].aneurysm_diameter_m else ""
-        extra += (f"; obliquity (BCA-LSA ostia line from the coronal plane) {r.obliquity_deg:.1f} deg"
-                  f" (arch_rotation_deg {PRESETS[name].arch_rotation_deg:g})")
+        extra = (
+            f"; max aortic diameter {r.max_aortic_diameter_m * 1e3:.1f} mm" if PRESETS[name].aneurysm_diameter_m else ""
+        )
+        extra += (
+            f"; obliquity (BCA-LSA ostia line from the coronal plane) {r.obliquity_deg:.1f} deg"
+            f" (arch_rotation_deg {PRESETS[name].arch_rotation_deg:g})"
+        )
         print(f"{'':<15} entry->site {paths}{extra}; mesher version {r.mesher_version}; -> {r.path}")
         if args.check:
             same, largest = compare(args.out / name, r.path)

@@ -30,8 +30,12 @@ EXTERNAL = ("http://", "https://", "mailto:", "ftp://")
 
 def markdown_files(root: pathlib.Path = ROOT) -> List[pathlib.Path]:
     """The Markdown files whose links are checked."""
-    files = [root / "README.md", *sorted((root / "docs").glob("*.md")), *sorted((root / "assets").glob("*/README.md")),
-             root / "experiments" / "README.md"]
+    files = [
+        root / "README.md",
+        *sorted((root / "docs").glob("*.md")),
+        *sorted((root / "assets").glob("*/README.md")),
+        root / "experiments" / "README.md",
+    ]
     return [f for f in files if f.is_file()]
 
 

@@ -19,9 +19,9 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import cathsim_dmc  # noqa: E402,F401  (selects the headless GL backend first)
-
 import matplotlib  # noqa: E402
+
+import cathsim_dmc  # noqa: E402,F401  (selects the headless GL backend first)
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -30,10 +30,10 @@ from dm_control import mjcf  # noqa: E402
 from dm_control.mujoco.engine import Camera  # noqa: E402
 from dm_control.mujoco.wrapper.core import MjvOption  # noqa: E402
 
+from cathsim_dmc.core.shipped import available_aortas  # noqa: E402
+from cathsim_dmc.entities import Aorta  # noqa: E402
 from cathsim_dmc.sim import geom_groups  # noqa: E402
 from cathsim_dmc.sim.arena import OperatingArena, top_camera_matrix  # noqa: E402
-from cathsim_dmc.entities import Aorta  # noqa: E402
-from cathsim_dmc.core.shipped import available_aortas  # noqa: E402
 
 PIXELS = 420
 SITE_COLOURS = {"bca": "#1f77b4", "lcca": "#2ca02c", "lsa": "#ff7f0e"}
@@ -70,8 +70,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("names", nargs="*", help="variants (default: every shipped one)")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "docs" / "gallery.png")
-    parser.add_argument("--crops", type=pathlib.Path, default=ROOT / "docs" / "aortas",
-                        help="folder for one image per variant (its panel of the gallery)")
+    parser.add_argument(
+        "--crops",
+        type=pathlib.Path,
+        default=ROOT / "docs" / "aortas",
+        help="folder for one image per variant (its panel of the gallery)",
+    )
     args = parser.parse_args(argv)
     shipped = available_aortas()
     names = args.names or [n for n in ORDER if n in shipped] + [n for n in shipped if n not in ORDER]
@@ -110,14 +114,24 @@ def main(argv=None) -> int:
             u, v = project(proj["top"], p)
             ax_top.plot(u, v, "o", ms=6, mec="black", mfc=colour, mew=0.8)
             dx, dy, ha = offsets.get(b, (6, 2, "left"))
-            ax_top.annotate(b.upper(), (u[0], v[0]), xytext=(dx, dy), textcoords="offset points", color=colour,
-                            fontsize=8, fontweight="bold", ha=ha, va="bottom")
+            ax_top.annotate(
+                b.upper(),
+                (u[0], v[0]),
+                xytext=(dx, dy),
+                textcoords="offset points",
+                color=colour,
+                fontsize=8,
+                fontweight="bold",
+                ha=ha,
+                va="bottom",
+            )
             u, v = project(proj["side"], p)
             ax_side.plot(u - c0, v, "o", ms=5, mec="black", mfc=colour, mew=0.8)
         u, v = project(proj["top"], asset.entry_position)
         ax_top.plot(u, v, "^", ms=7, mec="black", mfc="white", mew=0.8)
-        ax_top.annotate("entry", (u[0], v[0]), xytext=(-8, 0), textcoords="offset points", fontsize=8,
-                        ha="right", va="center")
+        ax_top.annotate(
+            "entry", (u[0], v[0]), xytext=(-8, 0), textcoords="offset points", fontsize=8, ha="right", va="center"
+        )
         meta = asset.meta
         title = name
         if asset.arch_type_distance_m is not None:
@@ -128,10 +142,17 @@ def main(argv=None) -> int:
             x = ub - 45
             for vv in (vb, vt):
                 ax_top.plot([x - 8, ub + 60], [vv, vv], color="black", lw=0.9, ls="--")
-            ax_top.annotate("", (x, vb), (x, vt), arrowprops=dict(arrowstyle="<->", lw=1.2, color="black",
-                                                                  shrinkA=0, shrinkB=0))
-            ax_top.text(x - 10, 0.5 * (vb + vt), f"{asset.arch_type_distance_m * 1e3:.1f} mm", ha="right",
-                        va="center", fontsize=8)
+            ax_top.annotate(
+                "", (x, vb), (x, vt), arrowprops=dict(arrowstyle="<->", lw=1.2, color="black", shrinkA=0, shrinkB=0)
+            )
+            ax_top.text(
+                x - 10,
+                0.5 * (vb + vt),
+                f"{asset.arch_type_distance_m * 1e3:.1f} mm",
+                ha="right",
+                va="center",
+                fontsize=8,
+            )
             ratio = asset.arch_type_distance_m / asset.cca_diameter_m
             tort = meta.get("tortuosity", {})
             extra = ""
@@ -141,12 +162,23 @@ def main(argv=None) -> int:
                 extra = ", common BCA-LCCA origin"
             if meta.get("params", {}).get("arch_rotation_deg"):
                 extra = f", obliquity {meta['arch_obliquity_deg']:.1f} deg"
-            title = (f"{name}: type {meta.get('arch_type', '?')}{extra}; tortuosity {tort.get('arch', float('nan')):.2f}\n"
-                     f"BCA origin {asset.arch_type_distance_m * 1e3:.1f} mm = {ratio:.2f} CCA diameters below arch top")
+            title = (
+                f"{name}: type {meta.get('arch_type', '?')}{extra}; tortuosity {tort.get('arch', float('nan')):.2f}\n"
+                f"BCA origin {asset.arch_type_distance_m * 1e3:.1f} mm = {ratio:.2f} CCA diameters below arch top"
+            )
         ax_top.set_title(title, fontsize=9.5, loc="left")
         ax_top.text(6, PIXELS - 8, "AP", fontsize=8, color="#444444")
-        ax_side.text(0.5, 0.01, "lateral", transform=ax_side.transAxes, fontsize=8, color="#444444", ha="center",
-                     va="bottom", bbox=dict(facecolor="white", edgecolor="none", pad=1))
+        ax_side.text(
+            0.5,
+            0.01,
+            "lateral",
+            transform=ax_side.transAxes,
+            fontsize=8,
+            color="#444444",
+            ha="center",
+            va="bottom",
+            bbox=dict(facecolor="white", edgecolor="none", pad=1),
+        )
         # 5 cm scale bar.
         bar = 50 * scale_px_per_mm
         ax_top.plot([PIXELS - 12 - bar, PIXELS - 12], [PIXELS - 14] * 2, color="black", lw=2)
@@ -156,9 +188,12 @@ def main(argv=None) -> int:
             ax.set_yticks([])
             for spine in ax.spines.values():
                 spine.set_color("#bbbbbb")
-    fig.suptitle("cathsim-dmc shipped aortas, all at the same scale: AP (top camera) and lateral (side camera) views\n"
-                 "sites: BCA blue, LCCA green, LSA orange; dashed lines: arch top and BCA origin (their distance sets "
-                 "the arch type); tortuosity: path/chord of the arch", fontsize=11)
+    fig.suptitle(
+        "cathsim-dmc shipped aortas, all at the same scale: AP (top camera) and lateral (side camera) views\n"
+        "sites: BCA blue, LCCA green, LSA orange; dashed lines: arch top and BCA origin (their distance sets "
+        "the arch type); tortuosity: path/chord of the arch",
+        fontsize=11,
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110, facecolor="white")
     print(f"wrote {args.out}")

@@ -39,8 +39,17 @@ import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SHIPPED = ("type1", "type1_oblique", "type2", "type2_oblique", "type3", "type3_oblique", "aneurysm",
-           "low_tortuosity", "bovine")
+SHIPPED = (
+    "type1",
+    "type1_oblique",
+    "type2",
+    "type2_oblique",
+    "type3",
+    "type3_oblique",
+    "aneurysm",
+    "low_tortuosity",
+    "bovine",
+)
 HELDOUT = dict(pool_size=100, pool_seed=1000, order="cycle", obliquity_deg=[39.7, 13.79])
 HELDOUT_NAME = "heldout"
 # The pool the recipe was tuned on and the shipped seed is chosen on (never the held-out one).
@@ -76,8 +85,17 @@ def train(root: Path, task: str, seed: int, specialist: bool, overrides: list) -
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
     (folder / "commit.txt").write_text(commit.stdout.strip() + "\n")
     recipe = [f"task={task}", "aorta=type1"] if specialist else ["+experiment=navigator", f"task={task}"]
-    _run([_tool("train"), *recipe, f"seed={seed}", "trainer.progress_bar=false", "trainer.video=false",
-          f"hydra.run.dir={folder}", *overrides])
+    _run(
+        [
+            _tool("train"),
+            *recipe,
+            f"seed={seed}",
+            "trainer.progress_bar=false",
+            "trainer.video=false",
+            f"hydra.run.dir={folder}",
+            *overrides,
+        ]
+    )
     return folder
 
 
@@ -93,8 +111,16 @@ def import_corpus(root: Path) -> dict:
             work.mkdir(parents=True, exist_ok=True)
             path, entry, sites = make_variant(name, work)
             vec = lambda p: "[" + ",".join(f"{x:.4f}" for x in p) + "]"  # noqa: E731
-            _run([_tool("aorta"), "import", f"mesh={path}", f"entry={vec(entry)}", f"out={out}",
-                  *[f"sites.{k}={vec(p)}" for k, p in sorted(sites.items())]])
+            _run(
+                [
+                    _tool("aorta"),
+                    "import",
+                    f"mesh={path}",
+                    f"entry={vec(entry)}",
+                    f"out={out}",
+                    *[f"sites.{k}={vec(p)}" for k, p in sorted(sites.items())],
+                ]
+            )
         assets[f"corpus_{name}"] = out
     return assets
 
@@ -148,19 +174,29 @@ def recipe_obs() -> str:
 PRESET_CARD = {
     "roadmap": "the registered roadmap around the tracked tip, in the tip's frame, and the robot's encoders",
     "roadmap_timed": "the registered roadmap around the tracked tip, in the tip's frame, the robot's encoders, "
-                     "and the steps the tip has stayed at the target's depth",
+    "and the steps the tip has stayed at the target's depth",
 }
 
 
-def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: list | None,
-             unfinished: bool = False, only_anatomies: list | None = None) -> None:
-    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+def evaluate(
+    root: Path,
+    task: str,
+    episodes: int,
+    shipped_episodes: int,
+    only: list | None,
+    unfinished: bool = False,
+    only_anatomies: list | None = None,
+) -> None:
     from cathsim_dmc.evaluation.rollouts import evaluate_policy
+    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
-    anatomies = {HELDOUT_NAME: ("random", HELDOUT, episodes), TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
-                 NOISY_NAME: ("random", HELDOUT, episodes)}
+    anatomies = {
+        HELDOUT_NAME: ("random", HELDOUT, episodes),
+        TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
+        NOISY_NAME: ("random", HELDOUT, episodes),
+    }
     anatomies.update({name: (name, None, shipped_episodes) for name in SHIPPED})
     if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
         anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
@@ -173,8 +209,9 @@ def evaluate(root: Path, task: str, episodes: int, shipped_episodes: int, only: 
         for anatomy, (aorta, params, count) in anatomies.items():
             if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
                 continue  # the tuning pool chooses the seed to ship
-            if anatomy == NOISY_NAME and not (isinstance(policy, CheckpointPolicy)
-                                              and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled):
+            if anatomy == NOISY_NAME and not (
+                isinstance(policy, CheckpointPolicy) and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled
+            ):
                 continue  # the noise is the roadmap's: the expert and the specialist do not read it
             out = root / "scores" / task / policy_name / anatomy
             if (out / "metrics.json").is_file():
@@ -205,8 +242,12 @@ def _arch_types() -> dict:
     from cathsim_dmc.tasks.randomized import anatomy_pool
 
     params = {k: v for k, v in HELDOUT.items() if k != "order"}
-    return {json.loads((a / "meta.json").read_text())["name"]: json.loads((a / "meta.json").read_text())["params"]
-            ["arch_type"] for a in anatomy_pool(**params)}
+    return {
+        json.loads((a / "meta.json").read_text())["name"]: json.loads((a / "meta.json").read_text())["params"][
+            "arch_type"
+        ]
+        for a in anatomy_pool(**params)
+    }
 
 
 def _cell(values: list, fmt: str = "{:.0f}") -> str:
@@ -241,11 +282,13 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
         if not scores.is_dir():
             continue
         groups = _groups(scores)
-        lines += [f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
-                  "",
-                  "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III "
-                  "| success % with noise |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+        lines += [
+            f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
+            "",
+            "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III "
+            "| success % with noise |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
             if not reports:
@@ -259,25 +302,38 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
                     hits = [e["success"] for e in m["episodes"] if types.get(e.get("aorta")) == arch]
                     rates.append(100.0 * sum(hits) / max(len(hits), 1))
                 by_type.append(_cell(rates))
-            lines.append(f"| {label} | {len(reports)} | {_cell([mean(m, 'success_pct') for m in reports])} | "
-                         f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
-                         f"{_cell([mean(m, 'force_n') for m in reports], '{:.2f}')} | "
-                         f"{_cell([mean(m, 'episode_length') for m in reports])} | " + " | ".join(by_type) + " | "
-                         + _cell([mean(m, "success_pct") for m in (_metrics(f / NOISY_NAME) for f in folders) if m])
-                         + " |")
+            lines.append(
+                f"| {label} | {len(reports)} | {_cell([mean(m, 'success_pct') for m in reports])} | "
+                f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
+                f"{_cell([mean(m, 'force_n') for m in reports], '{:.2f}')} | "
+                f"{_cell([mean(m, 'episode_length') for m in reports])} | "
+                + " | ".join(by_type)
+                + " | "
+                + _cell([mean(m, "success_pct") for m in (_metrics(f / NOISY_NAME) for f in folders) if m])
+                + " |"
+            )
         # One row per anatomy, one column per (target, policy) scored on any of them.
         for label, folders in groups.items():
-            cells = [_cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
-                     for a in ANATOMIES]
+            cells = [
+                _cell([m["summary"]["success_pct"]["mean"] for m in (_metrics(f / a) for f in folders) if m])
+                for a in ANATOMIES
+            ]
             if any(c != "-" for c in cells):
                 shipped[f"{task.upper()}: {label}"] = cells
         lines.append("")
     if shipped:
-        lines += ["### Success % on the shipped aortas and the imported corpus", "",
-                  "| anatomy | " + " | ".join(shipped) + " |", "|---" * (len(shipped) + 1) + "|"]
+        lines += [
+            "### Success % on the shipped aortas and the imported corpus",
+            "",
+            "| anatomy | " + " | ".join(shipped) + " |",
+            "|---" * (len(shipped) + 1) + "|",
+        ]
         for i, anatomy in enumerate(ANATOMIES):
-            lines.append(f"| {anatomy.replace('corpus_', 'corpus: ')} | "
-                         + " | ".join(cells[i] for cells in shipped.values()) + " |")
+            lines.append(
+                f"| {anatomy.replace('corpus_', 'corpus: ')} | "
+                + " | ".join(cells[i] for cells in shipped.values())
+                + " |"
+            )
         lines.append("")
     text = "\n".join(lines)
     if out:
@@ -291,8 +347,10 @@ def _summary(folder: Path) -> str:
     if not m:
         return "-"
     mean = lambda key: m["summary"][key]["mean"]  # noqa: E731
-    return (f"{mean('success_pct'):.0f}% success, SPL {mean('spl_pct'):.0f}%, force {mean('force_n'):.2f} N, "
-            f"{mean('episode_length'):.0f} steps")
+    return (
+        f"{mean('success_pct'):.0f}% success, SPL {mean('spl_pct'):.0f}%, force {mean('force_n'):.2f} N, "
+        f"{mean('episode_length'):.0f} steps"
+    )
 
 
 WIDE_BRANCH_LIMIT = """- In the wide BCA (12.5 mm in the shipped arches) the tip can come to rest on the wall 4-8.5 mm
@@ -307,9 +365,14 @@ WIDE_BRANCH_LIMIT = """- In the wide BCA (12.5 mm in the shipped arches) the tip
 def _failures_near_target(scores: Path, within_m: float = 0.0085) -> tuple:
     """(failed episodes, those that ended within `within_m` of the target) over every
     navigator seed's best.zip on the held-out pool and the shipped aortas."""
-    final = [e["final_distance_m"] for folder in scores.glob("navigator_seed*_best")
-             for anatomy in (HELDOUT_NAME, *SHIPPED) if (m := _metrics(folder / anatomy))
-             for e in m["episodes"] if not e["success"]]
+    final = [
+        e["final_distance_m"]
+        for folder in scores.glob("navigator_seed*_best")
+        for anatomy in (HELDOUT_NAME, *SHIPPED)
+        if (m := _metrics(folder / anatomy))
+        for e in m["episodes"]
+        if not e["success"]
+    ]
     return len(final), sum(d < within_m for d in final)
 
 
@@ -335,12 +398,17 @@ def ship(root: Path, task: str) -> Path:
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
     anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
-    names = {HELDOUT_NAME: "held out: pool 1000, 100 arches",
-             NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
-                         f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
-             TUNING_NAME: "tuning: pool 500, 50 arches"}
-    rows = "\n".join(f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |" for anatomy in anatomies
-                      if _metrics(chosen / anatomy))
+    names = {
+        HELDOUT_NAME: "held out: pool 1000, 100 arches",
+        NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
+        f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
+        TUNING_NAME: "tuning: pool 500, 50 arches",
+    }
+    rows = "\n".join(
+        f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |"
+        for anatomy in anatomies
+        if _metrics(chosen / anatomy)
+    )
     missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
     if missing:
         rows += f"\n\nNot scored yet: {', '.join(missing)}."
@@ -356,11 +424,15 @@ def ship(root: Path, task: str) -> Path:
     stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
     failed, near = _failures_near_target(scores)
     wide_branch = WIDE_BRANCH_LIMIT.format(failed=failed, near=near) if task == "bca" else ""
-    chosen_by = (f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1
-                 else "the only seed trained so far")
+    chosen_by = (
+        f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1 else "the only seed trained so far"
+    )
     what = f"{PRESET_CARD[obs]}; " if obs in PRESET_CARD else ""
-    preset = textwrap.fill(f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained "
-                           f"without noise.", width=96, subsequent_indent="  ")
+    preset = textwrap.fill(
+        f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained without noise.",
+        width=96,
+        subsequent_indent="  ",
+    )
     card = f"""# Pretrained navigator: {task.upper()}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
@@ -372,7 +444,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
 {preset}
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
-  `best.zip` of the run{stopped}: step {best['step']}, {100 * best['success_rate']:.0f}% of its periodic
+  `best.zip` of the run{stopped}: step {best["step"]}, {100 * best["success_rate"]:.0f}% of its periodic
   evaluation on 20 training arches; {chosen_by}.
 - **Data**: 64 random arches (`pool_seed` 0; types I-III, sizes and diameters x U(0.85, 1.15),
   obliquity 39.7 +- 13.8 degrees), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
@@ -427,8 +499,7 @@ def main(argv=None) -> int:
     if args.command == "train":
         train(args.root, args.task, args.seed, args.specialist, args.overrides)
     elif args.command == "evaluate":
-        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only, args.unfinished,
-                 args.anatomies)
+        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only, args.unfinished, args.anatomies)
     elif args.command == "ship":
         ship(args.root, args.task)
     else:

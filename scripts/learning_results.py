@@ -7,7 +7,8 @@
 finished when its eval/metrics.json exists and it took --steps; an interrupted one, or a
 finished one given a larger --steps, is resumed from its last checkpoint), one after the
 other. Every run evaluates its policy deterministically every --eval-every steps on 10
-episodes (evaluations.jsonl; the best one is kept as best.zip) and ends with a 50-episode report of best.zip on seeds it was not chosen on.
+episodes (evaluations.jsonl; the best one is kept as best.zip) and ends with a 50-episode
+report of best.zip on seeds it was not chosen on.
 `report` reads every run under --root and writes, per (variant, task): steps and wall
 time to the first periodic evaluation at >= 90% success, and the final success over 50
 episodes, for each seed and as the median over seeds; and a plot of the curves.
@@ -33,8 +34,17 @@ VARIANTS = {
     # the current results table.
     "demos_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *DEMOS], 8_000),
     # The same recipe on the image observations (the ENN).
-    "demos_enn": (["obs=enn", "algo=sac_tuned", "reward=progress", "algo.batch_size=64",
-                   "algo.share_features_extractor=true", *DEMOS], 50_000),
+    "demos_enn": (
+        [
+            "obs=enn",
+            "algo=sac_tuned",
+            "reward=progress",
+            "algo.batch_size=64",
+            "algo.share_features_extractor=true",
+            *DEMOS,
+        ],
+        50_000,
+    ),
     # SAC without demonstrations, which needs about 100k steps to learn the task.
     "tuned_internal": (["obs=internal", "algo=sac_tuned", "reward=progress", *NO_DEMOS], 100_000),
 }
@@ -47,22 +57,30 @@ def run_dir(root: Path, variant: str, task: str, seed: int) -> Path:
     return root / variant / task / f"seed{seed}"
 
 
-def new_run_overrides(variant: str, task: str, seed: int, eval_every: int, budget: int,
-                      save_replay_buffer: bool = False) -> list:
+def new_run_overrides(
+    variant: str, task: str, seed: int, eval_every: int, budget: int, save_replay_buffer: bool = False
+) -> list:
     """The cathsim-train overrides of a fresh run of `variant` on `task` ("bca-type1")."""
     overrides, _ = VARIANTS[variant]
     target, aorta = task.split("-", 1)
-    common = [f"trainer.total_timesteps={budget}", f"trainer.eval_every={eval_every}", "trainer.eval_episodes=10",
-              f"trainer.final_eval_episodes={FINAL_EPISODES}", "trainer.checkpoint_every=5000",
-              "trainer.progress_bar=false", "trainer.video=false"]
+    common = [
+        f"trainer.total_timesteps={budget}",
+        f"trainer.eval_every={eval_every}",
+        "trainer.eval_episodes=10",
+        f"trainer.final_eval_episodes={FINAL_EPISODES}",
+        "trainer.checkpoint_every=5000",
+        "trainer.progress_bar=false",
+        "trainer.video=false",
+    ]
     if save_replay_buffer:
         # With each checkpoint, so a run cut short resumes with the transitions it had.
         common.append("trainer.save_replay_buffer=true")
     return [f"task={target}", f"aorta={aorta}", f"seed={seed}", *overrides, *common]
 
 
-def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None,
-          save_replay_buffer: bool = False) -> None:
+def train(
+    root: Path, variant: str, task: str, seed: int, eval_every: int, steps: int | None, save_replay_buffer: bool = False
+) -> None:
     folder = run_dir(root, variant, task, seed)
     budget = steps or VARIANTS[variant][1]
     last = folder / "checkpoints" / "last.zip"
@@ -73,8 +91,10 @@ def train(root: Path, variant: str, task: str, seed: int, eval_every: int, steps
     if last.is_file():
         args = [f"resume={folder}", f"trainer.total_timesteps={budget}", f"hydra.run.dir={folder}"]
     else:
-        args = [*new_run_overrides(variant, task, seed, eval_every, budget, save_replay_buffer),
-                f"hydra.run.dir={folder}"]
+        args = [
+            *new_run_overrides(variant, task, seed, eval_every, budget, save_replay_buffer),
+            f"hydra.run.dir={folder}",
+        ]
     print(f"training {variant} {task} seed {seed}: {' '.join(args)}", flush=True)
     t0 = time.time()
     subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], check=True)
@@ -94,9 +114,13 @@ def summarise(folder: Path) -> dict:
     if final_file.is_file():
         summary = json.loads(final_file.read_text())["summary"]
         final = summary["success_pct"]["mean"] / 100
-    return {"steps_to_aim": first["step"] if first else None, "wall_s_to_aim": first["wall_s"] if first else None,
-            "final_success": final, "evaluations": evals,
-            "last_step": evals[-1]["step"] if evals else 0}
+    return {
+        "steps_to_aim": first["step"] if first else None,
+        "wall_s_to_aim": first["wall_s"] if first else None,
+        "final_success": final,
+        "evaluations": evals,
+        "last_step": evals[-1]["step"] if evals else 0,
+    }
 
 
 def _median(values):
@@ -119,17 +143,27 @@ def report(root: Path, out: Path, plot: Path | None) -> None:
             curves[(variant, task)] = {seed: r["evaluations"] for seed, r in runs.items()}
             fmt_steps = lambda r: f"{r['steps_to_aim']:,}" if r["steps_to_aim"] else f"not by {r['last_step']:,}"  # noqa: E731
             fmt_wall = lambda r: f"{r['wall_s_to_aim'] / 60:.0f} min" if r["wall_s_to_aim"] else "-"  # noqa: E731
-            fmt_final = lambda r: (f"{100 * r['final_success']:.0f}%" if r["final_success"] is not None  # noqa: E731
-                                   else f"no report (stopped at {r['last_step']:,})")
-            per_seed = "; ".join(f"seed {s}: {fmt_steps(r)}, {fmt_wall(r)}, final {fmt_final(r)}"
-                                 for s, r in sorted(runs.items()))
+            fmt_final = lambda r: (
+                f"{100 * r['final_success']:.0f}%"
+                if r["final_success"] is not None  # noqa: E731
+                else f"no report (stopped at {r['last_step']:,})"
+            )
+            per_seed = "; ".join(
+                f"seed {s}: {fmt_steps(r)}, {fmt_wall(r)}, final {fmt_final(r)}" for s, r in sorted(runs.items())
+            )
             finals = [r["final_success"] for r in runs.values()]
             median_final = _median(finals)
-            rows.append(f"| {variant} | {task} | {len(runs)} | "
-                        f"{_fmt_int(_median([r['steps_to_aim'] or float('inf') for r in runs.values()]))} | "
-                        f"{'-' if median_final is None else f'{100 * median_final:.0f}%'} | {per_seed} |")
-    lines = ["| variant | task | seeds | median steps to 90% | median final success (50 episodes) | per seed: steps to 90%, wall time to 90%, final |",
-             "|---|---|---|---|---|---|", *rows]
+            rows.append(
+                f"| {variant} | {task} | {len(runs)} | "
+                f"{_fmt_int(_median([r['steps_to_aim'] or float('inf') for r in runs.values()]))} | "
+                f"{'-' if median_final is None else f'{100 * median_final:.0f}%'} | {per_seed} |"
+            )
+    lines = [
+        "| variant | task | seeds | median steps to 90% | median final success (50 episodes) "
+        "| per seed: steps to 90%, wall time to 90%, final |",
+        "|---|---|---|---|---|---|",
+        *rows,
+    ]
     text = "\n".join(lines) + "\n"
     out.write_text(text) if out else None
     print(text)
@@ -158,8 +192,14 @@ def _plot(curves: dict, path: Path) -> None:
             if t != task:
                 continue
             for i, (seed, evals) in enumerate(sorted(seeds.items())):
-                ax.plot([e["step"] for e in evals], [e["success_rate"] for e in evals], color=colours[variant],
-                        alpha=0.8, lw=1.2, label=variant if i == 0 else None)
+                ax.plot(
+                    [e["step"] for e in evals],
+                    [e["success_rate"] for e in evals],
+                    color=colours[variant],
+                    alpha=0.8,
+                    lw=1.2,
+                    label=variant if i == 0 else None,
+                )
         ax.axhline(SUCCESS_AIM, color="0.6", ls=":", lw=1)
         ax.set_title(task)
         ax.set_xlabel("environment steps")
@@ -182,8 +222,11 @@ def main(argv=None) -> int:
     run.add_argument("--eval-every", type=int, default=1000, help="steps between evaluations (the trainer's default)")
     run.add_argument("--steps", type=int, default=None, help="override every variant's step budget")
     run.add_argument("--root", type=Path, default=Path("outputs/learning"))
-    run.add_argument("--save-replay-buffer", action="store_true",
-                     help="checkpoint the replay buffer too, so an interrupted run resumes faithfully")
+    run.add_argument(
+        "--save-replay-buffer",
+        action="store_true",
+        help="checkpoint the replay buffer too, so an interrupted run resumes faithfully",
+    )
     rep = sub.add_parser("report")
     rep.add_argument("--root", type=Path, default=Path("outputs/learning"))
     rep.add_argument("--out", type=Path, default=None)

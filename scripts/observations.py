@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 import cathsim_dmc  # noqa: F401  (GL backend before dm_control)
-from cathsim_dmc.sim import raster
 from cathsim_dmc import tasks
+from cathsim_dmc.sim import raster
 from cathsim_dmc.sim.render import TopView
 
 
@@ -35,10 +35,15 @@ def main():
     for i in range(args.steps):
         env.step(np.array([1.0, 0.6 if i < args.steps // 2 else -0.6]))
     task, physics = env.task, env.physics
-    views = {r: TopView(80, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
-             for r in ("gl", "raster")}
-    images = {(r, c): (v.mask(physics) if c == "mask" else v.image(physics, c))[..., 0]
-              for r, v in views.items() for c in ("camera", "fluoro", "mask")}
+    views = {
+        r: TopView(80, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
+        for r in ("gl", "raster")
+    }
+    images = {
+        (r, c): (v.mask(physics) if c == "mask" else v.image(physics, c))[..., 0]
+        for r, v in views.items()
+        for c in ("camera", "fluoro", "mask")
+    }
 
     gl_mask, raster_mask = images["gl", "mask"] > 0, images["raster", "mask"] > 0
     print(f"mask IoU (raster vs GL): {(gl_mask & raster_mask).sum() / (gl_mask | raster_mask).sum():.3f}")
@@ -46,8 +51,10 @@ def main():
     gl_vessel = images["gl", "camera"] > 10
     for r in ("raster", "gl"):
         fluoro = images[r, "fluoro"] < 255 * raster.FLUORO_BACKGROUND - 2
-        print(f"vessel silhouette IoU ({r} fluoro vs GL camera, off the wire): "
-              f"{(gl_vessel & fluoro & away).sum() / ((gl_vessel | fluoro) & away).sum():.3f}")
+        print(
+            f"vessel silhouette IoU ({r} fluoro vs GL camera, off the wire): "
+            f"{(gl_vessel & fluoro & away).sum() / ((gl_vessel | fluoro) & away).sum():.3f}"
+        )
 
     fig, axes = plt.subplots(2, 3, figsize=(7.5, 5.8))
     for row, r in enumerate(("gl", "raster")):

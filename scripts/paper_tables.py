@@ -61,8 +61,13 @@ sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 TARGETS = ("bca", "lcca")
 SEEDS = (0, 1, 2)
 # The main table's rows: obs preset -> the paper's name.
-MODALITIES = {"pixels": "Image", "pixels_mask": "Image+Mask", "internal": "Internal",
-              "internal_pixels": "Internal+Image", "enn": "ENN"}
+MODALITIES = {
+    "pixels": "Image",
+    "pixels_mask": "Image+Mask",
+    "internal": "Internal",
+    "internal_pixels": "Internal+Image",
+    "enn": "ENN",
+}
 # The project's recipe per modality: environment steps, and evaluations every 1,000 steps from
 # the pre-trained actor on (eval_at_start). With the joints alone the online phase needs its
 # 8k steps (docs/training.md); with an image the pre-trained actor already navigates (each of
@@ -76,7 +81,7 @@ PROTOCOL_STEPS = 100_000
 # Its estimated wall minutes beside one other job: an update of the paper's SAC took about
 # 48 ms with the joints and 140 ms of CPU with the image (2026-11-28, 1 torch thread).
 PROTOCOL_MINUTES = {"internal": 100, "pixels": 270}
-EXPERT_EPISODES = 300     # the students' datasets (per target)
+EXPERT_EPISODES = 300  # the students' datasets (per target)
 MORE_EXPERT_EPISODES = 700  # more expert episodes: 1,000 per target for the 100K force subset
 BC_EPOCHS = 20
 BC_MINUTES = 25  # a 300-episode student: 9-21 min measured, beside one to three other jobs
@@ -84,11 +89,18 @@ BC_MINUTES = 25  # a 300-episode student: 9-21 min measured, beside one to three
 ONE_SIDED_START = ("task.start_rotation_rad=3.2916", "task.start_rotation_jitter_rad=0.15")
 
 # The paper's numbers (Type-I phantom): success % / SPL %.
-PAPER_MAIN = {("pixels", "bca"): (65, 74), ("pixels", "lcca"): (33, 69),
-              ("pixels_mask", "bca"): (100, 86), ("pixels_mask", "lcca"): (100, 96),
-              ("internal", "bca"): (97, 80), ("internal", "lcca"): (83, 79),
-              ("internal_pixels", "bca"): (33, 76), ("internal_pixels", "lcca"): (100, 100),
-              ("enn", "bca"): (100, 99), ("enn", "lcca"): (100, 100)}
+PAPER_MAIN = {
+    ("pixels", "bca"): (65, 74),
+    ("pixels", "lcca"): (33, 69),
+    ("pixels_mask", "bca"): (100, 86),
+    ("pixels_mask", "lcca"): (100, 96),
+    ("internal", "bca"): (97, 80),
+    ("internal", "lcca"): (83, 79),
+    ("internal_pixels", "bca"): (33, 76),
+    ("internal_pixels", "lcca"): (100, 100),
+    ("enn", "bca"): (100, 99),
+    ("enn", "lcca"): (100, 100),
+}
 # The paper's ENN: force N, path cm, episode length, safety %.
 PAPER_ENN = {"bca": (2.33, 15.78, 36.88, 45), "lcca": (2.26, 14.85, 33.77, 45)}
 PAPER_BC = {"bca": (100, 98), "lcca": (100, 100)}  # "Image w. ENN": success / SPL
@@ -96,10 +108,20 @@ PAPER_FORCE = {1000: 0.5047, 10000: 0.1828, 100000: 0.0898}
 PAPER_FORCE_BASELINE = 5.0021
 
 TINY = {  # --budget tiny: every cell on a few steps and short episodes
-    "train": ["task.max_steps=30", "trainer.total_timesteps=20", "trainer.eval_every=10", "trainer.eval_episodes=1",
-              "trainer.final_eval_episodes=1", "trainer.checkpoint_every=10"],
-    "train_demos": ["demos.episodes=1", "demos.pretrain_actor_steps=2", "demos.critic_warmup_steps=2",
-                    "demos.takeover_rounds=0"],
+    "train": [
+        "task.max_steps=30",
+        "trainer.total_timesteps=20",
+        "trainer.eval_every=10",
+        "trainer.eval_episodes=1",
+        "trainer.final_eval_episodes=1",
+        "trainer.checkpoint_every=10",
+    ],
+    "train_demos": [
+        "demos.episodes=1",
+        "demos.pretrain_actor_steps=2",
+        "demos.critic_warmup_steps=2",
+        "demos.takeover_rounds=0",
+    ],
     "collect": ["task.max_steps=30", "episodes=2"],
     "bc": ["task.max_steps=30", "bc.epochs=1", "eval_episodes=1"],
     "force": ["force.sizes=[20,40]", "force.epochs=1", "force.min_updates=2"],
@@ -117,12 +139,12 @@ class UsageError(Exception):
 
 @dataclass
 class Cell:
-    name: str                        # its folder under ROOT
-    tool: str                        # train | collect | bc | force
-    args: Callable[[Path], list]     # the tool's Hydra overrides, given ROOT
-    minutes: float                   # estimated wall time on the 2-core machine beside one other job
-    needs: tuple = ()                # names of cells to finish first
-    demos: bool = True               # a training cell that records demonstrations
+    name: str  # its folder under ROOT
+    tool: str  # train | collect | bc | force
+    args: Callable[[Path], list]  # the tool's Hydra overrides, given ROOT
+    minutes: float  # estimated wall time on the 2-core machine beside one other job
+    needs: tuple = ()  # names of cells to finish first
+    demos: bool = True  # a training cell that records demonstrations
     # The needs whose files it reads, given the plan (default: all of them). A need that
     # finished on another machine (only the record holds it) is run again here first.
     reads: Callable[["Plan"], tuple] | None = None
@@ -136,7 +158,7 @@ class Plan:
     root: Path
     budget: str = "full"
     cells: list = field(default_factory=list)
-    record: Path | None = None       # the finished cells' numbers (default: ROOT/results.json)
+    record: Path | None = None  # the finished cells' numbers (default: ROOT/results.json)
 
     def __post_init__(self):
         self.record = self.record or self.root / "results.json"
@@ -176,33 +198,69 @@ def _fixed(*args):
 
 
 def _train_args(obs: str, target: str, seed: int, extra=()):
-    return _fixed(f"task={target}", "aorta=type1", f"obs={obs}", f"seed={seed}", *extra,
-                  "trainer.progress_bar=false", "trainer.video=false")
+    return _fixed(
+        f"task={target}",
+        "aorta=type1",
+        f"obs={obs}",
+        f"seed={seed}",
+        *extra,
+        "trainer.progress_bar=false",
+        "trainer.video=false",
+    )
 
 
 # Wall minutes of a main cell, two at a time: the medians measured 2026-11-27 to 2026-11-29
 # (docs/paper.md#cost). The LCCA records 300 demonstrations and three takeover rounds (the
 # ENN takes the rounds on both targets); the ENN's two images cost most.
-MAIN_MINUTES = {"internal": {"bca": 17, "lcca": 21}, "enn": {"bca": 60, "lcca": 76},
-                "pixels": {"bca": 22, "lcca": 27}, "pixels_mask": {"bca": 36, "lcca": 48},
-                "internal_pixels": {"bca": 18, "lcca": 26}}
+MAIN_MINUTES = {
+    "internal": {"bca": 17, "lcca": 21},
+    "enn": {"bca": 60, "lcca": 76},
+    "pixels": {"bca": 22, "lcca": 27},
+    "pixels_mask": {"bca": 36, "lcca": 48},
+    "internal_pixels": {"bca": 18, "lcca": 26},
+}
 
 
 def main_cell(obs: str, target: str, seed: int) -> Cell:
     steps = MAIN_STEPS[obs]
-    return Cell(f"main/{obs}/{target}/seed{seed}", "train",
-                _train_args(obs, target, seed, [f"trainer.total_timesteps={steps}", "trainer.eval_every=1000",
-                                                "trainer.eval_episodes=10", "trainer.eval_at_start=true",
-                                                f"trainer.final_eval_episodes={FINAL_EPISODES}"]),
-                minutes=MAIN_MINUTES[obs][target])
+    return Cell(
+        f"main/{obs}/{target}/seed{seed}",
+        "train",
+        _train_args(
+            obs,
+            target,
+            seed,
+            [
+                f"trainer.total_timesteps={steps}",
+                "trainer.eval_every=1000",
+                "trainer.eval_episodes=10",
+                "trainer.eval_at_start=true",
+                f"trainer.final_eval_episodes={FINAL_EPISODES}",
+            ],
+        ),
+        minutes=MAIN_MINUTES[obs][target],
+    )
 
 
 def protocol_cell(obs: str, target: str) -> Cell:
-    extra = [*PROTOCOL[obs], "reward=euclidean", "demos=none", f"trainer.total_timesteps={PROTOCOL_STEPS}",
-             "trainer.eval_every=5000", "trainer.eval_episodes=10", f"trainer.final_eval_episodes={FINAL_EPISODES}",
-             "trainer.checkpoint_every=5000", "trainer.save_replay_buffer=true"]
-    return Cell(f"protocol/{obs}/{target}/seed0", "train", _train_args(obs, target, 0, extra),
-                minutes=PROTOCOL_MINUTES[obs], demos=False)
+    extra = [
+        *PROTOCOL[obs],
+        "reward=euclidean",
+        "demos=none",
+        f"trainer.total_timesteps={PROTOCOL_STEPS}",
+        "trainer.eval_every=5000",
+        "trainer.eval_episodes=10",
+        f"trainer.final_eval_episodes={FINAL_EPISODES}",
+        "trainer.checkpoint_every=5000",
+        "trainer.save_replay_buffer=true",
+    ]
+    return Cell(
+        f"protocol/{obs}/{target}/seed0",
+        "train",
+        _train_args(obs, target, 0, extra),
+        minutes=PROTOCOL_MINUTES[obs],
+        demos=False,
+    )
 
 
 def best_enn_run(plan: Plan, target: str) -> Path:
@@ -225,16 +283,41 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
         for seed in SEEDS:
             for target in TARGETS:
                 add(main_cell(obs, target, seed))
+
     def dataset(name, target, policy, *extra):  # 300 episodes of a scripted policy
-        return Cell(f"imitation/data/{name}", "collect",
-                    _fixed(f"task={target}", "aorta=type1", f"policy={policy}", f"episodes={EXPERT_EPISODES}",
-                           "seed=0", *extra, "progress_bar=false"), minutes=10)
+        return Cell(
+            f"imitation/data/{name}",
+            "collect",
+            _fixed(
+                f"task={target}",
+                "aorta=type1",
+                f"policy={policy}",
+                f"episodes={EXPERT_EPISODES}",
+                "seed=0",
+                *extra,
+                "progress_bar=false",
+            ),
+            minutes=10,
+        )
 
     def student(name, target, *extra):  # the single-frame image student of imitation/data/<name>
-        return Cell(f"imitation/bc/{name}", "bc",
-                    _fixed(f"task={target}", "aorta=type1", f"data={data(name)}", *extra, f"bc.epochs={BC_EPOCHS}",
-                           f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-                    minutes=BC_MINUTES, needs=(f"imitation/data/{name}",))
+        return Cell(
+            f"imitation/bc/{name}",
+            "bc",
+            _fixed(
+                f"task={target}",
+                "aorta=type1",
+                f"data={data(name)}",
+                *extra,
+                f"bc.epochs={BC_EPOCHS}",
+                f"eval_episodes={FINAL_EPISODES}",
+                "seed=0",
+                "video=false",
+                "progress_bar=false",
+            ),
+            minutes=BC_MINUTES,
+            needs=(f"imitation/data/{name}",),
+        )
 
     for target in TARGETS:
         add(dataset(f"expert_{target}", target, "expert"))
@@ -253,29 +336,73 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
     # only the machine that trained them has.
     for target in TARGETS:
         enn_seeds = tuple(f"main/enn/{target}/seed{s}" for s in SEEDS)
-        add(Cell(f"imitation/data/enn_{target}", "collect",
-                 lambda root, t=target: [f"task={t}", "aorta=type1", f"policy={best_enn_run(plan, t)}",
-                                         f"episodes={EXPERT_EPISODES}", "seed=0", "progress_bar=false"],
-                 minutes=25, needs=enn_seeds,
-                 reads=lambda plan, t=target: (str(best_enn_run(plan, t).relative_to(plan.root)),)))
+        add(
+            Cell(
+                f"imitation/data/enn_{target}",
+                "collect",
+                lambda root, t=target: [
+                    f"task={t}",
+                    "aorta=type1",
+                    f"policy={best_enn_run(plan, t)}",
+                    f"episodes={EXPERT_EPISODES}",
+                    "seed=0",
+                    "progress_bar=false",
+                ],
+                minutes=25,
+                needs=enn_seeds,
+                reads=lambda plan, t=target: (str(best_enn_run(plan, t).relative_to(plan.root)),),
+            )
+        )
         add(student(f"enn_{target}", target))
     for obs in ("pixels_mask", "pixels", "internal_pixels"):
         for seed in SEEDS:
             for target in TARGETS:
                 add(main_cell(obs, target, seed))
     for target in TARGETS:
-        add(Cell(f"imitation/data/expert_more_{target}", "collect",
-                 _fixed(f"task={target}", "aorta=type1", "policy=expert", f"episodes={MORE_EXPERT_EPISODES}",
-                        f"seed={EXPERT_EPISODES}", "progress_bar=false"), minutes=20))
+        add(
+            Cell(
+                f"imitation/data/expert_more_{target}",
+                "collect",
+                _fixed(
+                    f"task={target}",
+                    "aorta=type1",
+                    "policy=expert",
+                    f"episodes={MORE_EXPERT_EPISODES}",
+                    f"seed={EXPERT_EPISODES}",
+                    "progress_bar=false",
+                ),
+                minutes=20,
+            )
+        )
     every = [f"expert_{t}" for t in TARGETS] + [f"expert_more_{t}" for t in TARGETS]
-    add(Cell("force", "force", _fixed(f"data=[{','.join(data(d) for d in every)}]", "force.epochs=8",
-                                      "progress_bar=false"),
-             minutes=60, needs=tuple(f"imitation/data/{d}" for d in every)))
+    add(
+        Cell(
+            "force",
+            "force",
+            _fixed(f"data=[{','.join(data(d) for d in every)}]", "force.epochs=8", "progress_bar=false"),
+            minutes=60,
+            needs=tuple(f"imitation/data/{d}" for d in every),
+        )
+    )
     # More data for the single-frame LCCA student: all 1,000 expert episodes.
-    add(Cell("imitation/bc/expert1000_lcca", "bc",
-             _fixed("task=lcca", "aorta=type1", f"data=[{data('expert_lcca')},{data('expert_more_lcca')}]",
-                    "bc.epochs=10", f"eval_episodes={FINAL_EPISODES}", "seed=0", "video=false", "progress_bar=false"),
-             minutes=60, needs=("imitation/data/expert_lcca", "imitation/data/expert_more_lcca")))
+    add(
+        Cell(
+            "imitation/bc/expert1000_lcca",
+            "bc",
+            _fixed(
+                "task=lcca",
+                "aorta=type1",
+                f"data=[{data('expert_lcca')},{data('expert_more_lcca')}]",
+                "bc.epochs=10",
+                f"eval_episodes={FINAL_EPISODES}",
+                "seed=0",
+                "video=false",
+                "progress_bar=false",
+            ),
+            minutes=60,
+            needs=("imitation/data/expert_lcca", "imitation/data/expert_more_lcca"),
+        )
+    )
     for target in TARGETS:
         for obs in PROTOCOL:
             add(protocol_cell(obs, target))
@@ -368,8 +495,9 @@ def _run_tool(name: str, folder: Path, cmd: list, **attempt) -> tuple:
         result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
     seconds = time.time() - t0
     if result.returncode != 0:
-        print(f"[{name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}",
-              flush=True)
+        print(
+            f"[{name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}", flush=True
+        )
     return result.returncode, commit, seconds
 
 
@@ -388,10 +516,21 @@ def run_cell(plan: Plan, cell: Cell) -> bool:
         if returncode != 0:
             return False
         count = len((folder / ATTEMPTS_FILE).read_text().splitlines())
-        (folder / CELL_FILE).write_text(json.dumps(
-            {"cell": cell.name, "tool": cell.tool, "command": " ".join([Path(cmd[0]).name, *cmd[1:]]),
-             "commit": commit,
-             "budget": plan.budget, "seconds": round(seconds, 1), "attempts": count, "finished": _now()}, indent=1))
+        (folder / CELL_FILE).write_text(
+            json.dumps(
+                {
+                    "cell": cell.name,
+                    "tool": cell.tool,
+                    "command": " ".join([Path(cmd[0]).name, *cmd[1:]]),
+                    "commit": commit,
+                    "budget": plan.budget,
+                    "seconds": round(seconds, 1),
+                    "attempts": count,
+                    "finished": _now(),
+                },
+                indent=1,
+            )
+        )
         save_record(plan, cell.name)
         print(f"[{cell.name}] finished in {seconds / 60:.1f} min", flush=True)
         return True
@@ -410,8 +549,12 @@ def reselect(plan: Plan, only: list | None) -> int:
     failed = 0
     for cell in plan.cells:
         folder = plan.folder(cell)
-        if (cell.tool != "train" or (only and not any(cell.name.startswith(o) for o in only))
-                or not (folder / CELL_FILE).is_file() or not has_unbroken_tie(folder)):
+        if (
+            cell.tool != "train"
+            or (only and not any(cell.name.startswith(o) for o in only))
+            or not (folder / CELL_FILE).is_file()
+            or not has_unbroken_tie(folder)
+        ):
             continue
         if not _claim(folder):
             print(f"[{cell.name}] held by another process", flush=True)
@@ -464,8 +607,11 @@ def next_cell(plan: Plan, chosen: list, taken: set, minutes_left: float = float(
             continue  # its input is being made again by another worker
         taken.add(pick.name)
         if (needed := minutes_to_finish(plan, pick)) > minutes_left:
-            print(f"[{pick.name}] not started: estimated {needed:.0f} min, {minutes_left:.0f} min "
-                  "left before the deadline", flush=True)
+            print(
+                f"[{pick.name}] not started: estimated {needed:.0f} min, {minutes_left:.0f} min "
+                "left before the deadline",
+                flush=True,
+            )
             continue
         if missing:
             print(f"[{pick.name}] run again on this machine: {cell.name} reads its files", flush=True)
@@ -566,8 +712,10 @@ def _result_from(folder: Path) -> dict:
             result["summary"] = report["summary"]
             result["per_episode"] = [{k: e[k] for k in METRIC_COLUMNS} for e in report["per_episode"]]
             break
-    curve = [{k: e[k] for k in ("step", "success_rate", "mean_episode_length", "mean_return")}
-             for e in read_evaluations(folder)]
+    curve = [
+        {k: e[k] for k in ("step", "success_rate", "mean_episode_length", "mean_return")}
+        for e in read_evaluations(folder)
+    ]
     if curve:
         result["evaluations"] = curve
     if (folder / "force.json").is_file():
@@ -610,8 +758,9 @@ def _pooled(reports: list) -> dict:
     from cathsim_dmc.evaluation.metrics import METRIC_COLUMNS
 
     episodes = [e for r in reports for e in r["per_episode"]]
-    return {k: (statistics.fmean(e[k] for e in episodes), statistics.pstdev(e[k] for e in episodes))
-            for k in METRIC_COLUMNS}
+    return {
+        k: (statistics.fmean(e[k] for e in episodes), statistics.pstdev(e[k] for e in episodes)) for k in METRIC_COLUMNS
+    }
 
 
 def _metric_cells(pooled: dict) -> list:
@@ -627,8 +776,13 @@ def _metric_header() -> list:
 
 
 def _table(header: list, rows: list) -> str:
-    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-                     + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]) + "\n"
+    return (
+        "\n".join(
+            ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+        )
+        + "\n"
+    )
 
 
 def _provenance(plan: Plan, names: list, only: str) -> str:
@@ -643,11 +797,12 @@ def _provenance(plan: Plan, names: list, only: str) -> str:
     again = ""
     if selected:
         at = sorted({s["commit"] for s in selected})
-        again = (f"; best.zip of {len(selected)} chosen again on more episodes at {', '.join(at)} "
-                 f"(`reselect`)")
-    return (f"\n{len(infos)} of {len(names)} cells finished, {span}, at commit{'s' if len(commits) > 1 else ''} "
-            f"{', '.join(commits)}{budget}{again}; `python scripts/paper_tables.py run --only {only}`, then "
-            f"`report`.\n")
+        again = f"; best.zip of {len(selected)} chosen again on more episodes at {', '.join(at)} (`reselect`)"
+    return (
+        f"\n{len(infos)} of {len(names)} cells finished, {span}, at commit{'s' if len(commits) > 1 else ''} "
+        f"{', '.join(commits)}{budget}{again}; `python scripts/paper_tables.py run --only {only}`, then "
+        f"`report`.\n"
+    )
 
 
 def main_table(plan: Plan) -> str:
@@ -666,9 +821,11 @@ def main_table(plan: Plan) -> str:
     header = ["Modality", "Target", "Seeds", *_metric_header(), "Success per seed (%)", "Paper: Success / SPL (%)"]
     enn = "; ".join(f"{t.upper()} {f} N, {p} cm, {n} steps, safety {s}%" for t, (f, p, n, s) in PAPER_ENN.items())
     budgets = ", ".join(f"{obs} {steps:,}" for obs, steps in MAIN_STEPS.items())
-    return (_table(header, rows) + f"\nThe paper's ENN row, force / path length / episode length / safety: {enn}.\n"
-            f"Steps per run: {budgets}; each seed's best.zip scored on {FINAL_EPISODES} episodes (seeds 10,000+); "
-            f"the metrics pool every episode of the seeds.\n" + _provenance(plan, names, "main"))
+    return (
+        _table(header, rows) + f"\nThe paper's ENN row, force / path length / episode length / safety: {enn}.\n"
+        f"Steps per run: {budgets}; each seed's best.zip scored on {FINAL_EPISODES} episodes (seeds 10,000+); "
+        f"the metrics pool every episode of the seeds.\n" + _provenance(plan, names, "main")
+    )
 
 
 def _evaluations(plan: Plan, name: str) -> list:
@@ -691,17 +848,32 @@ def protocol_table(plan: Plan) -> str:
             report = _finished(plan, name)
             ours = [_finished(plan, f"main/{obs}/{target}/seed{s}") for s in SEEDS]
             ours = [r for r in ours if r]
-            recipe = (f"{statistics.median(r['summary']['success_pct']['mean'] for r in ours):.0f}" if ours else "-")
+            recipe = f"{statistics.median(r['summary']['success_pct']['mean'] for r in ours):.0f}" if ours else "-"
             if report:
                 s = report["summary"]
                 result = f"{s['success_pct']['mean']:.0f} / {s['spl_pct']['mean']:.0f}"
             else:
                 result = _progress(plan, name) if evals else "not run"
-            rows.append([MODALITIES[obs], target.upper(), last, curve, result, recipe,
-                         "{} / {}".format(*PAPER_MAIN[(obs, target)])])
-    header = ["Modality", "Target", "Steps", "Success every 5k steps (%, 10 episodes)",
-              f"best.zip: Success / SPL (%, {FINAL_EPISODES} episodes)", "The project's recipe: median success (%)",
-              "Paper: Success / SPL (%)"]
+            rows.append(
+                [
+                    MODALITIES[obs],
+                    target.upper(),
+                    last,
+                    curve,
+                    result,
+                    recipe,
+                    "{} / {}".format(*PAPER_MAIN[(obs, target)]),
+                ]
+            )
+    header = [
+        "Modality",
+        "Target",
+        "Steps",
+        "Success every 5k steps (%, 10 episodes)",
+        f"best.zip: Success / SPL (%, {FINAL_EPISODES} episodes)",
+        "The project's recipe: median success (%)",
+        "Paper: Success / SPL (%)",
+    ]
     return _table(header, rows) + _provenance(plan, names, "protocol")
 
 
@@ -718,15 +890,22 @@ def imitation_table(plan: Plan) -> str:
         enn_done = all(plan.done(plan.by_name(f"main/enn/{target}/seed{s}")) for s in SEEDS)
         # (label, cell name or None, the paper's success / SPL or None)
         enn = best_enn_run(plan, target).relative_to(plan.root).as_posix() if enn_done else None
-        sources = [(f"ENN ({enn.rsplit('/', 1)[1] if enn else 'the best seed'} of 3)", enn,
-                    PAPER_MAIN[("enn", target)]),
-                   ("Image w/o expert (the paper's protocol)", f"protocol/pixels/{target}/seed0",
-                    PAPER_MAIN[("pixels", target)]),
-                   ("Image w. ENN agent", f"imitation/bc/enn_{target}", PAPER_BC[target]),
-                   ("Image w. scripted expert", f"imitation/bc/expert_{target}", None),
-                   ("Image w. scripted expert, starts on one side (π to π+0.3 rad)",
-                    f"imitation/bc/expert_onesided_{target}", None),
-                   ("Image w. steady expert (no turns on straight stretches)", f"imitation/bc/steady_{target}", None)]
+        sources = [
+            (f"ENN ({enn.rsplit('/', 1)[1] if enn else 'the best seed'} of 3)", enn, PAPER_MAIN[("enn", target)]),
+            (
+                "Image w/o expert (the paper's protocol)",
+                f"protocol/pixels/{target}/seed0",
+                PAPER_MAIN[("pixels", target)],
+            ),
+            ("Image w. ENN agent", f"imitation/bc/enn_{target}", PAPER_BC[target]),
+            ("Image w. scripted expert", f"imitation/bc/expert_{target}", None),
+            (
+                "Image w. scripted expert, starts on one side (π to π+0.3 rad)",
+                f"imitation/bc/expert_onesided_{target}",
+                None,
+            ),
+            ("Image w. steady expert (no turns on straight stretches)", f"imitation/bc/steady_{target}", None),
+        ]
         if target == "lcca":
             sources.append(("Image w. scripted expert, 1,000 episodes", "imitation/bc/expert1000_lcca", None))
         for label, name, paper in sources:
@@ -734,14 +913,19 @@ def imitation_table(plan: Plan) -> str:
                 names.append(name)
             rows.append(_imitation_row(target, label, _finished(plan, name) if name else None, paper))
         human = plan.root / "human" / target / "metrics.json"
-        rows.append(_imitation_row(target, "Human (cathsim-teleop)",
-                                   json.loads(human.read_text()) if human.is_file() else None, None))
+        rows.append(
+            _imitation_row(
+                target, "Human (cathsim-teleop)", json.loads(human.read_text()) if human.is_file() else None, None
+            )
+        )
     header = ["Target", "Method", *_metric_header(), "Episodes", "Paper: Success / SPL (%)"]
     note = ""
     if not any((plan.root / "human" / t / "metrics.json").is_file() for t in TARGETS):
-        note = ("\nNo human data was recorded. To add the Human row, drive `cathsim-teleop task=bca aorta=type1` "
-                "(it needs a display) and copy its run folder to ROOT/human/bca (and lcca), ROOT being the --root "
-                "of `paper_tables.py` (default outputs/paper).\n")
+        note = (
+            "\nNo human data was recorded. To add the Human row, drive `cathsim-teleop task=bca aorta=type1` "
+            "(it needs a display) and copy its run folder to ROOT/human/bca (and lcca), ROOT being the --root "
+            "of `paper_tables.py` (default outputs/paper).\n"
+        )
     return _table(header, rows) + note + _provenance(plan, names, "imitation protocol/pixels main/enn")
 
 
@@ -751,18 +935,25 @@ def force_table(plan: Plan) -> str:
         return "Not run yet: `python scripts/paper_tables.py run --only force`.\n"
     report = result["force"]
     header = ["Test MSE (N²)", *[f"{r['train_samples']:,} samples" for r in report["sizes"]]]
-    rows = [["Force network", *[f"{r['model']['mse_n2']:.4f}" for r in report["sizes"]]],
-            ["Train-set mean", *[f"{r['train_mean']['mse_n2']:.4f}" for r in report["sizes"]]]]
+    rows = [
+        ["Force network", *[f"{r['model']['mse_n2']:.4f}" for r in report["sizes"]]],
+        ["Train-set mean", *[f"{r['train_mean']['mse_n2']:.4f}" for r in report["sizes"]]],
+    ]
     paper = [PAPER_FORCE.get(r["size_requested"]) for r in report["sizes"]]
     rows.append(["Paper: force network", *[f"{p:.4f}" if p is not None else "-" for p in paper]])
     rows.append(["Paper: baseline", *[f"{PAPER_FORCE_BASELINE:.4f}"] * len(report["sizes"])])
     if all("without_outliers" in r for r in report["sizes"]):
-        rows.append([f"Force network, without the {report['test_outliers']} test sample(s) above "
-                     f"{report['outlier_n']:g} N", *[f"{r['without_outliers']['model']['mse_n2']:.4f}"
-                                                    for r in report["sizes"]]])
+        rows.append(
+            [
+                f"Force network, without the {report['test_outliers']} test sample(s) above {report['outlier_n']:g} N",
+                *[f"{r['without_outliers']['model']['mse_n2']:.4f}" for r in report["sizes"]],
+            ]
+        )
     text = _table(header, rows)
-    text += (f"\nTest set: {report['test_samples']:,} samples of {report['test_episodes']} episodes, mean force "
-             f"{report['test_force_mean_n']:.3f} N (std {report['test_force_std_n']:.3f} N).\n")
+    text += (
+        f"\nTest set: {report['test_samples']:,} samples of {report['test_episodes']} episodes, mean force "
+        f"{report['test_force_mean_n']:.3f} N (std {report['test_force_std_n']:.3f} N).\n"
+    )
     return text + _provenance(plan, ["force"], "force")
 
 
@@ -786,27 +977,39 @@ def curves_figure(plan: Plan, path: Path) -> str:
             if runs:
                 steps = sorted({e["step"] for r in runs for e in r})
                 values = [[e["mean_episode_length"] for r in runs for e in r if e["step"] == s] for s in steps]
-                top.plot(steps, [statistics.median(v) for v in values], color=colours[obs],
-                         label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
-                top.fill_between(steps, [min(v) for v in values], [max(v) for v in values], color=colours[obs],
-                                 alpha=0.15)
+                top.plot(
+                    steps,
+                    [statistics.median(v) for v in values],
+                    color=colours[obs],
+                    label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
+                )
+                top.fill_between(
+                    steps, [min(v) for v in values], [max(v) for v in values], color=colours[obs], alpha=0.15
+                )
                 drawn += 1
             if obs in PROTOCOL:
                 name = f"protocol/{obs}/{target}/seed0"
                 evals = _evaluations(plan, name)
                 if evals:  # a protocol cell runs for hours: its curve so far is drawn, and says so
                     running = "" if _finished(plan, name) else f", {_progress(plan, name)}: {evals[-1]['step']:,} steps"
-                    bottom.plot([e["step"] for e in evals], [e["mean_episode_length"] for e in evals],
-                                color=colours[obs], label=f"{label} (seed 0{running})")
+                    bottom.plot(
+                        [e["step"] for e in evals],
+                        [e["mean_episode_length"] for e in evals],
+                        color=colours[obs],
+                        label=f"{label} (seed 0{running})",
+                    )
                     if all("mean_return" in e for e in evals):  # records before 2026-11-28 did not keep it
                         returns = returns or bottom.twinx()
-                        returns.plot([e["step"] for e in evals], [e["mean_return"] for e in evals],
-                                     color=colours[obs], ls=":")
+                        returns.plot(
+                            [e["step"] for e in evals], [e["mean_return"] for e in evals], color=colours[obs], ls=":"
+                        )
                     drawn += 1
         if returns is not None:
             with_return = True
             returns.set_ylabel("mean return, Euclidean reward (dotted)")
-            returns.set_ylim(top=max(0.0, returns.get_ylim()[1]))  # 0 at the top: a flat return sits below the 300-step line
+            returns.set_ylim(
+                top=max(0.0, returns.get_ylim()[1])
+            )  # 0 at the top: a flat return sits below the 300-step line
         human = plan.root / "human" / target / "metrics.json"
         for ax in (top, bottom):
             if human.is_file():
@@ -828,10 +1031,12 @@ def curves_figure(plan: Plan, path: Path) -> str:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
-    return (f"![episode length against training steps]({path.name})\n\n"
-            f"Median over the seeds with their range; 300 steps is the episode limit (a failure). "
-            + ("Dotted, right axis: the protocol's mean return. " if with_return else "")
-            + f"{drawn} curves drawn.\n")
+    return (
+        f"![episode length against training steps]({path.name})\n\n"
+        f"Median over the seeds with their range; 300 steps is the episode limit (a failure). "
+        + ("Dotted, right axis: the protocol's mean return. " if with_return else "")
+        + f"{drawn} curves drawn.\n"
+    )
 
 
 def _cost_group(name: str) -> tuple:
@@ -847,8 +1052,9 @@ def cost_table(plan: Plan) -> str:
     for cell in plan.cells:
         key, target = _cost_group(cell.name)
         info = _cell_info(plan, cell.name)
-        g = groups.setdefault(key, {"estimated": cell.minutes, "measured": [], "cells": 0, "finished": 0,
-                                    "targets": []})
+        g = groups.setdefault(
+            key, {"estimated": cell.minutes, "measured": [], "cells": 0, "finished": 0, "targets": []}
+        )
         g["cells"] += 1
         if target and target not in g["targets"]:
             g["targets"].append(target)
@@ -856,15 +1062,35 @@ def cost_table(plan: Plan) -> str:
             g["finished"] += 1
             if info.get("attempts", 1) == 1:  # a resumed cell's killed attempts were not timed
                 g["measured"].append(info["seconds"] / 60)
-    rows = [[k + ", ".join(g["targets"]), g["cells"], g["finished"], f"{g['estimated']:.0f}",
-             f"{statistics.median(g['measured']):.1f} ({len(g['measured'])})" if g["measured"] else "-"]
-            for k, g in groups.items()]
-    return _table(["Cell", "Cells", "Finished", "Estimated min per cell",
-                   "Measured min per cell (median of the cells finished in one attempt)"], rows)
+    rows = [
+        [
+            k + ", ".join(g["targets"]),
+            g["cells"],
+            g["finished"],
+            f"{g['estimated']:.0f}",
+            f"{statistics.median(g['measured']):.1f} ({len(g['measured'])})" if g["measured"] else "-",
+        ]
+        for k, g in groups.items()
+    ]
+    return _table(
+        [
+            "Cell",
+            "Cells",
+            "Finished",
+            "Estimated min per cell",
+            "Measured min per cell (median of the cells finished in one attempt)",
+        ],
+        rows,
+    )
 
 
-SECTIONS = {"main": main_table, "protocol": protocol_table, "imitation": imitation_table, "force": force_table,
-            "cost": cost_table}
+SECTIONS = {
+    "main": main_table,
+    "protocol": protocol_table,
+    "imitation": imitation_table,
+    "force": force_table,
+    "cost": cost_table,
+}
 
 
 def report(plan: Plan, out: Path) -> str:
@@ -879,7 +1105,8 @@ def report(plan: Plan, out: Path) -> str:
     else:
         text = "# The paper's experiments\n\n" + "".join(
             f"## {name}\n\n<!-- paper_tables:{name} -->\n{block}<!-- /paper_tables:{name} -->\n\n"
-            for name, block in blocks.items())
+            for name, block in blocks.items()
+        )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     return text
@@ -899,17 +1126,25 @@ def parse_deadline(text: str, now: datetime.datetime | None = None) -> datetime.
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("outputs/paper"))
-    parser.add_argument("--record", type=Path, default=None,
-                        help="the finished cells' numbers (default: experiments/paper_results.json for the full "
-                             "budget, ROOT/results.json for tiny); cells it holds are not run again")
+    parser.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        help="the finished cells' numbers (default: experiments/paper_results.json for the full "
+        "budget, ROOT/results.json for tiny); cells it holds are not run again",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("plan", help="every cell, its state and its cost")
     r = sub.add_parser("run", help="run the unfinished cells")
     r.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     r.add_argument("--jobs", type=int, default=1, help="cells run at once (2 on a 2-core machine)")
     r.add_argument("--budget", choices=("full", "tiny"), default=None, help="tiny: a few steps per cell (tests)")
-    r.add_argument("--deadline", default=None, metavar="HH:MM",
-                   help="start only cells whose estimated time ends before this local time (its next occurrence)")
+    r.add_argument(
+        "--deadline",
+        default=None,
+        metavar="HH:MM",
+        help="start only cells whose estimated time ends before this local time (its next occurrence)",
+    )
     sel = sub.add_parser("reselect", help="choose best.zip again in finished training cells with an unbroken tie")
     sel.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
     rep = sub.add_parser("report", help="the tables and the figure")
@@ -921,8 +1156,10 @@ def main(argv=None) -> int:
             names = [c.name for c in plan.cells]
             for prefix in args.only or []:
                 if not any(n.startswith(prefix) for n in names):
-                    raise UsageError(f"--only {prefix}: no cell starts with it; cells: main/<obs>/<target>/seed<s>, "
-                                     f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0")
+                    raise UsageError(
+                        f"--only {prefix}: no cell starts with it; cells: main/<obs>/<target>/seed<s>, "
+                        f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0"
+                    )
             if args.jobs < 1:
                 raise UsageError(f"--jobs {args.jobs}: give 1 or more")
             deadline = parse_deadline(args.deadline) if args.deadline else None

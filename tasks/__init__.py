@@ -1,20 +1,20 @@
 """The navigation suite: every (target, aorta) pair, loaded like a dm_control suite task.
 
-    from cathsim_dmc import tasks
-    env = tasks.load("bca", "type1", obs="enn", seed=0)
-    tasks.ALL_TASKS  # (("bca", "type1"), ("lcca", "type1"), ...)
+from cathsim_dmc import tasks
+env = tasks.load("bca", "type1", obs="enn", seed=0)
+tasks.ALL_TASKS  # (("bca", "type1"), ("lcca", "type1"), ...)
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from cathsim_dmc.core.registry import CUSTOM_AORTA, TARGETS, all_tasks, aorta_choices
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.sim.physics import DEFAULT_PHYSICS, physics_settings
-from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, observation_settings
-from cathsim_dmc.core.registry import CUSTOM_AORTA, TARGETS, aorta_choices, all_tasks
 from cathsim_dmc.tasks.environment import NavigationEnvironment
 from cathsim_dmc.tasks.navigate import Navigate, check_options
+from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, observation_settings
 from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment
 
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
@@ -34,7 +34,8 @@ def validate(task: str, aorta: str, obs: str = "internal") -> None:
         raise ValueError(f"task={task!r} is not a navigation target; choose one of {list(TARGETS)}")
     if aorta not in aorta_choices() and not (Path(aorta) / "meta.json").is_file():
         raise ValueError(
-            f"aorta={aorta!r} is not a shipped aorta or an asset folder; choose one of {list(aorta_choices())}")
+            f"aorta={aorta!r} is not a shipped aorta or an asset folder; choose one of {list(aorta_choices())}"
+        )
     if obs not in OBSERVATION_PRESETS:
         raise ValueError(f"obs={obs!r} is not an observation preset; choose one of {list(OBSERVATIONS)}")
 
@@ -44,17 +45,30 @@ def check_keywords(what: str, given, accepts, supplied=()) -> None:
     the callables `accepts` do not take (or that the caller `supplied` itself)."""
     import inspect
 
-    valid = sorted({name for function in accepts for name, p in inspect.signature(function).parameters.items()
-                    if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)} - {"self", *supplied})
+    valid = sorted(
+        {
+            name
+            for function in accepts
+            for name, p in inspect.signature(function).parameters.items()
+            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+        }
+        - {"self", *supplied}
+    )
     unknown = sorted(set(given or ()) - set(valid))
     if unknown:
-        raise ValueError(f"{what}: unknown keyword argument{'s' if len(unknown) > 1 else ''} "
-                         f"{', '.join(map(repr, unknown))}; valid: {', '.join(valid)}")
+        raise ValueError(
+            f"{what}: unknown keyword argument{'s' if len(unknown) > 1 else ''} "
+            f"{', '.join(map(repr, unknown))}; valid: {', '.join(valid)}"
+        )
 
 
 # What build_task passes to Navigate and the entities itself.
-_SUPPLIED = {Navigate.__init__: ("aorta", "guidewire", "robot", "target", "observations"),
-             FollowerRobot._build: ("name",), Guidewire._build: ("name",), Aorta._build: ("asset", "name")}
+_SUPPLIED = {
+    Navigate.__init__: ("aorta", "guidewire", "robot", "target", "observations"),
+    FollowerRobot._build: ("name",),
+    Guidewire._build: ("name",),
+    Aorta._build: ("asset", "name"),
+}
 
 
 def build_task(
@@ -89,8 +103,11 @@ def build_task(
     validate(task, aorta, obs)
     check_options(**task_kwargs)
     check_keywords("tasks.load", task_kwargs, [build_task, Navigate.__init__], _SUPPLIED[Navigate.__init__])
-    for what, given, entity in (("guidewire", guidewire, Guidewire), ("robot", robot, FollowerRobot),
-                                ("aorta_options", aorta_options, Aorta)):
+    for what, given, entity in (
+        ("guidewire", guidewire, Guidewire),
+        ("robot", robot, FollowerRobot),
+        ("aorta_options", aorta_options, Aorta),
+    ):
         check_keywords(what, given, [entity._build], _SUPPLIED[entity._build])
     if aorta == RANDOM_AORTA:
         raise ValueError(f"aorta='{RANDOM_AORTA}' is a pool of anatomies, not one task: use tasks.load")
@@ -100,25 +117,43 @@ def build_task(
         aorta = generated_asset(dict(aorta_params or {}))
     elif aorta_params:
         raise ValueError(f"aorta_params is only used with aorta='{CUSTOM_AORTA}', not aorta={aorta!r}")
-    image_options = dict(image_size=image_size, renderer=renderer, style=style, noise_std=noise_std, lao_deg=lao_deg,
-                         tracking_noise_m=tracking_noise_m, registration_error_m=registration_error_m)
+    image_options = dict(
+        image_size=image_size,
+        renderer=renderer,
+        style=style,
+        noise_std=noise_std,
+        lao_deg=lao_deg,
+        tracking_noise_m=tracking_noise_m,
+        registration_error_m=registration_error_m,
+    )
     settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))
     # Every wall the wire touches carries the wire's contact parameters (MuJoCo mixes them).
     contact = dict(channel_solref=wire.contact_solref, channel_solimp=wire.contact_solimp)
     # The shaped tip starts just outside the introducer sheath, whatever its length.
     start = dict(initial_insertion_m=wire.tip_length_m + TIP_START_PAST_SHEATH_M)
-    follower = FollowerRobot(wire_length_m=wire.length_m, wire_radius_m=wire.radius_m,
-                             **{**contact, **start, **(robot or {})})
+    follower = FollowerRobot(
+        wire_length_m=wire.length_m, wire_radius_m=wire.radius_m, **{**contact, **start, **(robot or {})}
+    )
     # The wall goes into the compiled model directly (NavigationEnvironment; fast build).
-    wall = dict(solref=wire.contact_solref, solimp=wire.contact_solimp, hulls_in_mjcf=False,
-                wall=physics_settings(task_kwargs.get("physics") or DEFAULT_PHYSICS).wall)
+    wall = dict(
+        solref=wire.contact_solref,
+        solimp=wire.contact_solimp,
+        hulls_in_mjcf=False,
+        wall=physics_settings(task_kwargs.get("physics") or DEFAULT_PHYSICS).wall,
+    )
     vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})
     return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)
 
 
-def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=None,
-         environment_kwargs: dict | None = None, **kwargs) -> NavigationEnvironment:
+def load(
+    task: str = "bca",
+    aorta: str = "type1",
+    obs: str = "internal",
+    seed=None,
+    environment_kwargs: dict | None = None,
+    **kwargs,
+) -> NavigationEnvironment:
     """A ready composer environment for (task, aorta); kwargs go to `build_task`.
 
     `aorta="random"` returns a `RandomAnatomyEnvironment`: the anatomy is redrawn every
@@ -134,12 +169,27 @@ def load(task: str = "bca", aorta: str = "type1", obs: str = "internal", seed=No
         check_keywords("tasks.load", kwargs, [build_task, Navigate.__init__], _SUPPLIED[Navigate.__init__])
 
         def build(asset, random_state):
-            return NavigationEnvironment(build_task(task, str(asset), obs, **kwargs), random_state=random_state,
-                                         **(environment_kwargs or {}))
+            return NavigationEnvironment(
+                build_task(task, str(asset), obs, **kwargs), random_state=random_state, **(environment_kwargs or {})
+            )
 
         return random_anatomy_environment(params, build, seed=seed)
     navigate = build_task(task, aorta, obs, **kwargs)
     return NavigationEnvironment(navigate, random_state=seed, **(environment_kwargs or {}))
 
 
-__all__ = ["ALL_TASKS", "CUSTOM_AORTA", "RANDOM_AORTA", "RandomAnatomyEnvironment", "TARGETS", "aorta_choices", "OBSERVATIONS", "Navigate", "NavigationEnvironment", "build_task", "check_options", "load", "validate"]
+__all__ = [
+    "ALL_TASKS",
+    "CUSTOM_AORTA",
+    "RANDOM_AORTA",
+    "RandomAnatomyEnvironment",
+    "TARGETS",
+    "aorta_choices",
+    "OBSERVATIONS",
+    "Navigate",
+    "NavigationEnvironment",
+    "build_task",
+    "check_options",
+    "load",
+    "validate",
+]

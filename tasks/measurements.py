@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.paths import CenterlineTree
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
+from cathsim_dmc.sim import physics as cs_physics
 
 
 @dataclass
@@ -42,8 +42,9 @@ class StepInfo:
 class WireMeasurements:
     """The wire's measurements for a task whose target is `target_name` on `paths`."""
 
-    def __init__(self, aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot, paths: CenterlineTree,
-                 target_name: str):
+    def __init__(
+        self, aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot, paths: CenterlineTree, target_name: str
+    ):
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._paths, self._target_name = paths, target_name
         self.wire_mask = self.vessel_mask = None  # geom masks of the wire and the wall (set per episode)
@@ -64,9 +65,11 @@ class WireMeasurements:
         self.vessel_mask[self._aorta.wall_geom_ids(physics)] = True
         # Rows of data.xpos / data.site_xpos for `wire_points_m`, read every control step:
         # indexing the arrays directly costs a fraction of a dm_control binding.
-        self._wire_point_rows = (physics.bind(self._guidewire.segments).element_id,
-                                 physics.bind(self._guidewire.geoms).element_id,
-                                 physics.bind(self._guidewire.tip_site).element_id)
+        self._wire_point_rows = (
+            physics.bind(self._guidewire.segments).element_id,
+            physics.bind(self._guidewire.geoms).element_id,
+            physics.bind(self._guidewire.tip_site).element_id,
+        )
         self._stepped_state = None
 
     def set_start(self, physics, insertion_m: float) -> None:
@@ -83,8 +86,9 @@ class WireMeasurements:
         """After a control step: what of the new state its last physics step left current."""
         # Accelerations and constraint forces of the new state, once (the step info's
         # contact forces need them; see ConstraintSensingPhysics.complete_stepped_state).
-        self._stepped_state_complete = (isinstance(physics, cs_physics.ConstraintSensingPhysics)
-                                        and physics.complete_stepped_state())
+        self._stepped_state_complete = (
+            isinstance(physics, cs_physics.ConstraintSensingPhysics) and physics.complete_stepped_state()
+        )
         # dm_control's legacy step (composer's default) ends with mj_step1: the position
         # and velocity stages of this state are current, so `contact_forces` needs only
         # the rest of mj_forward, as long as the state is still this one.
@@ -99,8 +103,13 @@ class WireMeasurements:
         """(N, 3) points along the wire: segment ends, segment centres and the tip."""
         rows = self._wire_point_rows
         if rows is None or physics.is_dirty:  # no episode yet, or a write not yet forwarded: bind forwards it
-            return np.vstack([physics.bind(self._guidewire.segments).xpos, physics.bind(self._guidewire.geoms).xpos,
-                              physics.bind(self._guidewire.tip_site).xpos])
+            return np.vstack(
+                [
+                    physics.bind(self._guidewire.segments).xpos,
+                    physics.bind(self._guidewire.geoms).xpos,
+                    physics.bind(self._guidewire.tip_site).xpos,
+                ]
+            )
         bodies, geoms, tip = rows
         data = physics.data
         return np.vstack([data.xpos[bodies], data.geom_xpos[geoms], data.site_xpos[tip]])
@@ -137,14 +146,20 @@ class WireMeasurements:
         """
         if self._contacts is None:
             stepped = self._stepped_state
-            in_stepped_state = (stepped is not None and np.array_equal(stepped[0], physics.data.qpos)
-                                and np.array_equal(stepped[1], physics.data.qvel))
+            in_stepped_state = (
+                stepped is not None
+                and np.array_equal(stepped[0], physics.data.qpos)
+                and np.array_equal(stepped[1], physics.data.qvel)
+            )
             if in_stepped_state and not self._stepped_state_complete:
                 cs_physics.forward_from_velocity_stage(physics)
-            self._contacts = cs_physics.wire_contacts(physics, self.wire_mask, recompute=not in_stepped_state,
-                                                      is_vessel_geom=self.vessel_mask)
+            self._contacts = cs_physics.wire_contacts(
+                physics, self.wire_mask, recompute=not in_stepped_state, is_vessel_geom=self.vessel_mask
+            )
         return self._contacts
 
     def start_force_n(self, physics) -> float:
         """The wall force of a state just forwarded (a reset's start state), newtons."""
-        return cs_physics.wire_contacts(physics, self.wire_mask, recompute=False, is_vessel_geom=self.vessel_mask).total_n
+        return cs_physics.wire_contacts(
+            physics, self.wire_mask, recompute=False, is_vessel_geom=self.vessel_mask
+        ).total_n

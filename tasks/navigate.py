@@ -4,21 +4,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import dm_env.specs
+import numpy as np
 from dm_control import composer
 
-from cathsim_dmc.core.checks import check_number
-from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS, TaskConfig
-from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Containment
+from cathsim_dmc.anatomy.paths import CenterlineTree
+from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS, TaskConfig
+from cathsim_dmc.core.checks import check_number
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterDrive, catheter_named
+from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.sim.render import ObservationSettings
-from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
+from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 from cathsim_dmc.tasks.rewards import SUCCESS_REWARD, NavigationReward
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
@@ -44,9 +44,18 @@ def check_removed_arguments(arguments) -> None:
             raise ValueError(f"{name} was {REMOVED_TASK_ARGUMENTS[name]}; leave it out")
 
 
-def check_options(delta_m=None, max_steps=None, success_reward=None, progress_weight=None, physics=None,
-                  catheter=None, start_rotation_rad=None, start_rotation_jitter_rad=None,
-                  start_insertion_jitter_m=None, **others) -> None:
+def check_options(
+    delta_m=None,
+    max_steps=None,
+    success_reward=None,
+    progress_weight=None,
+    physics=None,
+    catheter=None,
+    start_rotation_rad=None,
+    start_rotation_jitter_rad=None,
+    start_insertion_jitter_m=None,
+    **others,
+) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
@@ -56,8 +65,10 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, progress_we
     """
     check_removed_arguments(others)
     if delta_m is not None and check_number("delta_m", delta_m, 0.0, inclusive=False) > MAX_SUCCESS_RADIUS_M:
-        raise ValueError(f"delta_m={delta_m!r} m is larger than any meaningful success radius; choose one in "
-                         f"(0, {MAX_SUCCESS_RADIUS_M}] m (the paper's: {SUCCESS_RADIUS_M})")
+        raise ValueError(
+            f"delta_m={delta_m!r} m is larger than any meaningful success radius; choose one in "
+            f"(0, {MAX_SUCCESS_RADIUS_M}] m (the paper's: {SUCCESS_RADIUS_M})"
+        )
     if max_steps is not None:
         check_number("max_steps", max_steps, 1, whole=True)
     if success_reward is not None:
@@ -70,14 +81,22 @@ def check_options(delta_m=None, max_steps=None, success_reward=None, progress_we
         catheter_named(catheter)
     if start_rotation_rad is not None:
         check_number("start_rotation_rad", start_rotation_rad)
-    if start_rotation_jitter_rad is not None and check_number(
-            "start_rotation_jitter_rad", start_rotation_jitter_rad, 0.0) > np.pi:
-        raise ValueError(f"start_rotation_jitter_rad={start_rotation_jitter_rad!r} rad is more than a half turn; "
-                         f"choose one in [0, pi]")
-    if start_insertion_jitter_m is not None and check_number(
-            "start_insertion_jitter_m", start_insertion_jitter_m, 0.0) > MAX_START_INSERTION_JITTER_M:
-        raise ValueError(f"start_insertion_jitter_m={start_insertion_jitter_m!r} m is deeper than a start below the "
-                         f"arch allows; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m")
+    if (
+        start_rotation_jitter_rad is not None
+        and check_number("start_rotation_jitter_rad", start_rotation_jitter_rad, 0.0) > np.pi
+    ):
+        raise ValueError(
+            f"start_rotation_jitter_rad={start_rotation_jitter_rad!r} rad is more than a half turn; "
+            f"choose one in [0, pi]"
+        )
+    if (
+        start_insertion_jitter_m is not None
+        and check_number("start_insertion_jitter_m", start_insertion_jitter_m, 0.0) > MAX_START_INSERTION_JITTER_M
+    ):
+        raise ValueError(
+            f"start_insertion_jitter_m={start_insertion_jitter_m!r} m is deeper than a start below the "
+            f"arch allows; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m"
+        )
 
 
 @dataclass(frozen=True)
@@ -160,37 +179,59 @@ class Navigate(composer.Task):
         if removed:
             raise TypeError(f"Navigate() got an unexpected keyword argument {next(iter(removed))!r}")
         if target not in aorta.targets:
-            raise ValueError(f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}")
-        check_options(delta_m=delta_m, max_steps=max_steps, success_reward=success_reward,
-                      progress_weight=progress_weight, physics=physics, catheter=catheter,
-                      start_rotation_rad=start_rotation_rad, start_rotation_jitter_rad=start_rotation_jitter_rad,
-                      start_insertion_jitter_m=start_insertion_jitter_m)
+            raise ValueError(
+                f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}"
+            )
+        check_options(
+            delta_m=delta_m,
+            max_steps=max_steps,
+            success_reward=success_reward,
+            progress_weight=progress_weight,
+            physics=physics,
+            catheter=catheter,
+            start_rotation_rad=start_rotation_rad,
+            start_rotation_jitter_rad=start_rotation_jitter_rad,
+            start_insertion_jitter_m=start_insertion_jitter_m,
+        )
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._target_name = target
         self._physics_setting = physics
         self._catheter_drive = None if catheter is None else CatheterDrive(catheter_named(catheter), guidewire, robot)
         self._delta_m = float(delta_m)
         self._max_steps = int(max_steps)
-        self._start = StartPose(float(start_insertion_jitter_m), float(start_rotation_rad),
-                                float(start_rotation_jitter_rad))
+        self._start = StartPose(
+            float(start_insertion_jitter_m), float(start_rotation_rad), float(start_rotation_jitter_rad)
+        )
         self._settings = observations
-        self._reward = NavigationReward(kind=reward, dense=bool(dense), success_reward=float(success_reward),
-                                        progress_weight=float(progress_weight))
+        self._reward = NavigationReward(
+            kind=reward, dense=bool(dense), success_reward=float(success_reward), progress_weight=float(progress_weight)
+        )
         self._extra_observations = check_extra_observations(extra_observations)
         self._paths = CenterlineTree.from_asset(aorta.asset)
         self._measurements = WireMeasurements(aorta, guidewire, robot, self._paths, target)
 
-        self._scene = build_scene(aorta, guidewire, robot, aorta.targets[target], self._delta_m,
-                                  lao_deg=observations.lao_deg, blood_drag=blood_drag, physics=physics)
+        self._scene = build_scene(
+            aorta,
+            guidewire,
+            robot,
+            aorta.targets[target],
+            self._delta_m,
+            lao_deg=observations.lao_deg,
+            blood_drag=blood_drag,
+            physics=physics,
+        )
         self._containment = self._scene.containment
         depth_m = float(self._containment.field.signed_distance_m(self.target_position_m)[0])
         if not depth_m > 0:  # no episode could succeed: it would evaluate at 0% without a word
-            raise ValueError(f"target {target!r} of aorta {aorta.name!r} lies outside its lumen "
-                             f"({-depth_m * 1e3:.1f} mm or more); `cathsim-aorta validate {aorta.asset.path}` "
-                             f"lists the asset's problems")
+            raise ValueError(
+                f"target {target!r} of aorta {aorta.name!r} lies outside its lumen "
+                f"({-depth_m * 1e3:.1f} mm or more); `cathsim-aorta validate {aorta.asset.path}` "
+                f"lists the asset's problems"
+            )
         self.set_timesteps(control_timestep=control_timestep_s, physics_timestep=guidewire.physics_timestep_s)
         self._task_observables, self._top_view, self._roadmap = task_observables(
-            self, observations, self._extra_observations)
+            self, observations, self._extra_observations
+        )
 
         self._step_count = 0
         self._success = False
@@ -286,8 +327,9 @@ class Navigate(composer.Task):
         # NavigationEnvironment's physics then reports every physics step's total; in
         # another composer.Environment the step's force falls back to its end state's.
         measurements = self._measurements
-        self._step_force.start(physics, measurements.wire_mask, measurements.vessel_mask,
-                               measurements.start_force_n(physics))
+        self._step_force.start(
+            physics, measurements.wire_mask, measurements.vessel_mask, measurements.start_force_n(physics)
+        )
         measurements.forget()
         measurements.set_start(physics, insertion)
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
@@ -315,7 +357,8 @@ class Navigate(composer.Task):
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
-            shape=(self.action_size,), dtype=np.float32, minimum=-1.0, maximum=1.0, name=",".join(self.action_names))
+            shape=(self.action_size,), dtype=np.float32, minimum=-1.0, maximum=1.0, name=",".join(self.action_names)
+        )
 
     @property
     def action_names(self) -> tuple:
@@ -399,8 +442,9 @@ class Navigate(composer.Task):
 
     def reward_distance_m(self, physics) -> float:
         """The distance the dense reward penalises for the current tip (`distance_for_reward_m`)."""
-        return self._reward.distance_m(self.tip_position_m(physics), self.target_position_m,
-                                       lambda: self.path_distance_m(physics))
+        return self._reward.distance_m(
+            self.tip_position_m(physics), self.target_position_m, lambda: self.path_distance_m(physics)
+        )
 
     def distance_for_reward_m(self, tip_position_m, location: tuple | None = None) -> float:
         """The distance the dense reward penalises for a tip at `tip_position_m`, in metres
@@ -409,8 +453,9 @@ class Navigate(composer.Task):
         tip = np.asarray(tip_position_m, dtype=float)
 
         def along_vessel_m() -> float:
-            return self._paths.geodesic_from_location(location or self._paths.locate(tip, prefer=self._target_name),
-                                                      self._target_name)
+            return self._paths.geodesic_from_location(
+                location or self._paths.locate(tip, prefer=self._target_name), self._target_name
+            )
 
         return self._reward.distance_m(tip, self.target_position_m, along_vessel_m)
 

@@ -23,15 +23,17 @@ def check_extra_observations(extra_observations) -> tuple:
     return tuple(extra_observations)
 
 
-def task_observables(task, settings: ObservationSettings,
-                     extra_observations: tuple = ()) -> tuple[dict, TopView, RoadmapTracker]:
+def task_observables(
+    task, settings: ObservationSettings, extra_observations: tuple = ()
+) -> tuple[dict, TopView, RoadmapTracker]:
     """(name -> observable, the `TopView` drawing the images, the `RoadmapTracker` of the
     roadmap observation) for `task` (a `Navigate`), those of `settings` and
     `extra_observations` enabled."""
     robot, guidewire = task.robot, task.guidewire
     wire_joints = guidewire.joints
-    top_view = TopView(settings.image_size, renderer=settings.renderer, wire=guidewire,
-                       vessel_geom_id=task.aorta.visual_geom_id)
+    top_view = TopView(
+        settings.image_size, renderer=settings.renderer, wire=guidewire, vessel_geom_id=task.aorta.visual_geom_id
+    )
     roadmap = RoadmapTracker(task, settings.tracking_noise_m, settings.registration_error_m)
 
     def catheter_features():
@@ -41,17 +43,24 @@ def task_observables(task, settings: ObservationSettings,
     obs = {
         # The robot's pose as bounded features (insertion / stroke, sin and cos of the
         # rotation, which is never wrapped otherwise), then the wire's bending angles (rad).
-        "joint_pos": observable.Generic(lambda physics: np.concatenate(
-            [robot.pose_features(physics), physics.bind(wire_joints).qpos, catheter_features()])),
+        "joint_pos": observable.Generic(
+            lambda physics: np.concatenate(
+                [robot.pose_features(physics), physics.bind(wire_joints).qpos, catheter_features()]
+            )
+        ),
         # Robot rates as fractions of the drive's maximum speeds, then the wire's (rad/s).
-        "joint_vel": observable.Generic(lambda physics: np.concatenate(
-            [robot.rate_features(physics), physics.bind(wire_joints).qvel])),
+        "joint_vel": observable.Generic(
+            lambda physics: np.concatenate([robot.rate_features(physics), physics.bind(wire_joints).qvel])
+        ),
         "wire_slack": observable.Generic(lambda physics: np.array([task.slack_m(physics)])),
         "drive_force": observable.Generic(lambda physics: np.array([robot.drive_force_n(physics)])),
         # What the robot's encoders measure: its pose and rates (joint_pos's and joint_vel's
         # first entries) and the catheter's offset; not the wire's shape.
-        "robot_state": observable.Generic(lambda physics: np.concatenate(
-            [robot.pose_features(physics), robot.rate_features(physics), catheter_features()])),
+        "robot_state": observable.Generic(
+            lambda physics: np.concatenate(
+                [robot.pose_features(physics), robot.rate_features(physics), catheter_features()]
+            )
+        ),
         # The registered roadmap around the tracked tip, in the tip's frame (tasks/roadmap.py).
         "roadmap": observable.Generic(roadmap.features),
         "target_depth_time": observable.Generic(roadmap.depth_time),

@@ -13,8 +13,15 @@ from cathsim_dmc.core.shipped import conf_root
 from cathsim_dmc.sim.render import IMAGE_STYLES, MAX_RENDER_PX, RENDERERS, ObservationSettings, TopView
 
 # What a preset can enable (the task has a few more, enabled one by one as extra observations).
-PRESET_OBSERVABLES = ("pixels", "guidewire_mask", "joint_pos", "joint_vel", "roadmap", "robot_state",
-                      "target_depth_time")
+PRESET_OBSERVABLES = (
+    "pixels",
+    "guidewire_mask",
+    "joint_pos",
+    "joint_vel",
+    "roadmap",
+    "robot_state",
+    "target_depth_time",
+)
 
 
 def load_presets(folder) -> dict:
@@ -32,11 +39,15 @@ def load_presets(folder) -> dict:
         spec = yaml.safe_load(path.read_text()) or {}
         unknown = sorted(set(spec.get("observables") or ()) - set(PRESET_OBSERVABLES))
         if spec.get("name") != path.stem or not spec.get("observables") or unknown:
-            raise ValueError(f"{path}: a preset needs name: {path.stem} and observables from "
-                             f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})")
-        options = {key: spec[key] for key in ("renderer", "style", "image_size", "lao_deg",
-                                                 "tracking_noise_m", "registration_error_m")
-                   if spec.get(key) is not None}
+            raise ValueError(
+                f"{path}: a preset needs name: {path.stem} and observables from "
+                f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})"
+            )
+        options = {
+            key: spec[key]
+            for key in ("renderer", "style", "image_size", "lao_deg", "tracking_noise_m", "registration_error_m")
+            if spec.get(key) is not None
+        }
         presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
     return presets
 
@@ -57,9 +68,11 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         raise ValueError(f"renderer={settings.renderer!r}; choose one of {RENDERERS}")
     largest = TopView.largest_image_size(settings)
     if largest is not None and settings.image_size > largest:
-        raise ValueError(f"image_size={settings.image_size!r} is too large for the {settings.renderer} renderer "
-                         f"and the {settings.style} style (its GL renders are supersampled within the "
-                         f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}")
+        raise ValueError(
+            f"image_size={settings.image_size!r} is too large for the {settings.renderer} renderer "
+            f"and the {settings.style} style (its GL renders are supersampled within the "
+            f"{MAX_RENDER_PX} px offscreen framebuffer); choose 1 to {largest}"
+        )
     if not settings.noise_std >= 0:
         raise ValueError(f"noise_std={settings.noise_std!r} must be >= 0 (grey levels)")
     for key in ("tracking_noise_m", "registration_error_m"):

@@ -22,14 +22,20 @@ import numpy as np
 from cathsim_dmc.core.registry import RANDOM_AORTA  # noqa: F401  (the name's one home; public here too)
 
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
-DISTRIBUTION_KEYS = ("base", "arch_types", "type_weights", "size_scale", "diameter_scale", "obliquity_deg",
-                     "obliquity_range_deg")
+DISTRIBUTION_KEYS = (
+    "base",
+    "arch_types",
+    "type_weights",
+    "size_scale",
+    "diameter_scale",
+    "obliquity_deg",
+    "obliquity_range_deg",
+)
 POOL_KEYS = ("pool_size", "pool_seed", "resample_every", "order", "assets", "prebuild")
 ORDERS = ("random", "cycle")
 
 
-def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] | None = None,
-                 **distribution) -> list:
+def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] | None = None, **distribution) -> list:
     """The pool's asset folders: `assets` (names or folders) if given, else `pool_size`
     generated arches, the i-th drawn by `sample_arch_params(seed=(pool_seed, i), **distribution)`
     (so a larger pool keeps the smaller one's anatomies)."""
@@ -42,9 +48,12 @@ def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] |
     if int(pool_size) < 1:
         raise ValueError(f"aorta pool_size={pool_size!r} must be at least 1")
     options = {k: (tuple(v) if isinstance(v, list) else v) for k, v in distribution.items() if v is not None}
-    return [generated_asset(sample_arch_params(np.random.default_rng([int(pool_seed), i]),
-                                               name=f"random{pool_seed}-{i}", **options))
-            for i in range(int(pool_size))]
+    return [
+        generated_asset(
+            sample_arch_params(np.random.default_rng([int(pool_seed), i]), name=f"random{pool_seed}-{i}", **options)
+        )
+        for i in range(int(pool_size))
+    ]
 
 
 def random_anatomy_environment(params: dict | None, build, seed=None) -> "RandomAnatomyEnvironment":
@@ -53,8 +62,10 @@ def random_anatomy_environment(params: dict | None, build, seed=None) -> "Random
     params = dict(params or {})
     unknown = sorted(set(params) - set(POOL_KEYS + DISTRIBUTION_KEYS))
     if unknown:
-        raise ValueError(f"aorta_params {unknown} unknown for aorta='{RANDOM_AORTA}'; "
-                         f"choose from {list(POOL_KEYS + DISTRIBUTION_KEYS)}")
+        raise ValueError(
+            f"aorta_params {unknown} unknown for aorta='{RANDOM_AORTA}'; "
+            f"choose from {list(POOL_KEYS + DISTRIBUTION_KEYS)}"
+        )
     env_keys = ("resample_every", "prebuild", "order")
     if params.get("order", "random") not in ORDERS:  # before the pool, whose build takes tens of seconds
         raise ValueError(f"aorta order={params['order']!r}; choose one of {list(ORDERS)}")
@@ -74,8 +85,15 @@ class RandomAnatomyEnvironment:
     `build(asset, random_state)` makes the composer environment of one anatomy.
     """
 
-    def __init__(self, anatomies: Sequence, build, resample_every: int = 1, seed=None, prebuild: bool = False,
-                 order: str = "random"):
+    def __init__(
+        self,
+        anatomies: Sequence,
+        build,
+        resample_every: int = 1,
+        seed=None,
+        prebuild: bool = False,
+        order: str = "random",
+    ):
         if not anatomies:
             raise ValueError("the anatomy pool is empty")
         if order not in ORDERS:

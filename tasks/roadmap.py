@@ -68,8 +68,9 @@ class RoadmapTracker:
     def start(self, random_state) -> None:
         """A new episode: a new registration offset; the nearest point is searched afresh."""
         self._random_state = random_state
-        self._offset = (random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0
-                        else np.zeros(3))
+        self._offset = (
+            random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0 else np.zeros(3)
+        )
         self._s = None
         self._time_s = None
         self._at_depth_steps = 0

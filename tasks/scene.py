@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
-from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
+from cathsim_dmc.sim import physics as cs_physics
+from cathsim_dmc.sim.arena import OperatingArena
 
 WALL_COMPLIANCE_M = 0.5e-3  # how far a wire centre may sit past a wall beyond its own radius (soft contact)
 
@@ -36,9 +36,16 @@ class NavigationScene:
     containment: Containment
 
 
-def build_scene(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot, target_position_m, target_radius_m: float,
-                lao_deg: float = 0.0, blood_drag: bool = False,
-                physics: str | cs_physics.PhysicsSettings = cs_physics.DEFAULT_PHYSICS) -> NavigationScene:
+def build_scene(
+    aorta: Aorta,
+    guidewire: Guidewire,
+    robot: FollowerRobot,
+    target_position_m,
+    target_radius_m: float,
+    lao_deg: float = 0.0,
+    blood_drag: bool = False,
+    physics: str | cs_physics.PhysicsSettings = cs_physics.DEFAULT_PHYSICS,
+) -> NavigationScene:
     """Assembles the scene around the entities (which it attaches).
 
     The arena takes the wire's physics timestep, `blood_drag` and the solver settings
@@ -68,8 +75,11 @@ def build_scene(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot, target
     # wire has escaped. The channel's capsule reaches its bore's corners plus the
     # tolerance, and past the outlet only into the lumen.
     tolerance_m = guidewire.radius_m + WALL_COMPLIANCE_M
-    introducer = Channel(start_m=outlet - robot.channel_length_m * direction, end_m=outlet,
-                         radius_m=robot.channel_half_width_m * np.sqrt(2.0) + tolerance_m)
+    introducer = Channel(
+        start_m=outlet - robot.channel_length_m * direction,
+        end_m=outlet,
+        radius_m=robot.channel_half_width_m * np.sqrt(2.0) + tolerance_m,
+    )
     containment = Containment(lumen_field(aorta.asset), tolerance_m, [introducer])
     return NavigationScene(arena, aorta, guidewire, robot, target, containment)
 
@@ -77,17 +87,23 @@ def build_scene(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot, target
 def check_introducer(aorta: Aorta, guidewire: Guidewire, robot: FollowerRobot) -> None:
     """ValueError unless the robot's sheath can seal this aorta's access and the wire's tip can start outside it."""
     if robot.seal_half_width_m is None:
-        raise ValueError("robot has no seal plate (seal_half_width_m=None): the access would stay open beside "
-                         "the sheath and a buckled wire could leave the vessel there")
+        raise ValueError(
+            "robot has no seal plate (seal_half_width_m=None): the access would stay open beside "
+            "the sheath and a buckled wire could leave the vessel there"
+        )
     # The wall's pieces lie contact_margin_m behind the lumen surface (see `Aorta`).
     needed_m = aorta.access_radius_m + aorta.contact_margin_m + aorta.wall_thickness_m
     if robot.seal_half_width_m < needed_m:
-        raise ValueError(f"robot seal_half_width_m={robot.seal_half_width_m} m does not cover the open end of "
-                         f"aorta {aorta.name!r} (radius plus wall: {needed_m:.4g} m)")
+        raise ValueError(
+            f"robot seal_half_width_m={robot.seal_half_width_m} m does not cover the open end of "
+            f"aorta {aorta.name!r} (radius plus wall: {needed_m:.4g} m)"
+        )
     shaped = bool(np.any(guidewire.rest_qpos))
     if shaped and robot.initial_insertion_m <= guidewire.tip_length_m:
-        raise ValueError(f"robot initial_insertion_m={robot.initial_insertion_m} m must exceed the wire's "
-                         f"tip_length_m={guidewire.tip_length_m} m: the shaped tip must start outside the sheath")
+        raise ValueError(
+            f"robot initial_insertion_m={robot.initial_insertion_m} m must exceed the wire's "
+            f"tip_length_m={guidewire.tip_length_m} m: the shaped tip must start outside the sheath"
+        )
 
 
 def quat_z_to(direction) -> np.ndarray:

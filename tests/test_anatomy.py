@@ -17,16 +17,15 @@ import shutil
 import numpy as np
 import pytest
 import trimesh
-from scipy import spatial
 
-from cathsim_dmc.anatomy import (BRANCHES, PRESETS, ArchParams, arch_type_of, build_arch, build_asset, load_asset)
+from cathsim_dmc.anatomy import BRANCHES, PRESETS, ArchParams, arch_type_of, build_arch, build_asset, load_asset
 from cathsim_dmc.anatomy.asset import SHIPPED_MESHER_VERSIONS, recorded_mesher_version
 from cathsim_dmc.anatomy.lumen import MESHER_VERSION
 from cathsim_dmc.anatomy.sdf import signed_distance
 from cathsim_dmc.anatomy.triangles import triangle_quality
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M, HullSet, cap_faces, validate_asset
-from cathsim_dmc.sim.model_check import validate_and_compile
 from cathsim_dmc.core.shipped import available_aortas
+from cathsim_dmc.sim.model_check import validate_and_compile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets"
@@ -34,8 +33,17 @@ TYPE1 = ASSETS / "type1"
 SHIPPED = list(PRESETS)
 MM = 1e-3
 # Clinical arch type each shipped variant must have.
-EXPECTED_TYPE = {"type1": "I", "type2": "II", "type3": "III", "aneurysm": "I", "low_tortuosity": "I", "bovine": "I",
-                 "type1_oblique": "I", "type2_oblique": "II", "type3_oblique": "III"}
+EXPECTED_TYPE = {
+    "type1": "I",
+    "type2": "II",
+    "type3": "III",
+    "aneurysm": "I",
+    "low_tortuosity": "I",
+    "bovine": "I",
+    "type1_oblique": "I",
+    "type2_oblique": "II",
+    "type3_oblique": "III",
+}
 
 _cache = {}
 
@@ -96,8 +104,10 @@ def test_lumen_watertight_outward_and_clean(name):
     assert lumen.euler_number == 2, "one closed surface without handles"
     q = triangle_quality(lumen.vertices, lumen.faces[~cap])
     n_thin = int((q["min_angle"] < 10).sum())
-    print(f"\n{name}: {len(lumen.faces)} triangles, edges {q['edge_min'] / MM:.2f}-{q['edge_max'] / MM:.2f} mm "
-          f"(mean {q['edge_mean'] / MM:.2f}), min angle {q['min_angle'].min():.1f} deg, {n_thin} below 10 deg")
+    print(
+        f"\n{name}: {len(lumen.faces)} triangles, edges {q['edge_min'] / MM:.2f}-{q['edge_max'] / MM:.2f} mm "
+        f"(mean {q['edge_mean'] / MM:.2f}), min angle {q['min_angle'].min():.1f} deg, {n_thin} below 10 deg"
+    )
     assert 3_000 < len(lumen.faces) < 20_000
     assert n_thin == 0
     # The cap is the flat disc of the open end and nothing else; one prism per other face.
@@ -123,8 +133,10 @@ def test_arch_type_class_and_landmarks(name):
     asset = shipped(name)[0]
     meta = asset.meta
     ratio = asset.arch_type_distance_m / asset.cca_diameter_m
-    print(f"\n{name}: arch-type distance {asset.arch_type_distance_m / MM:.1f} mm = {ratio:.2f} CCA diameters "
-          f"(type {arch_type_of(ratio)}), tortuosity {meta['tortuosity']}")
+    print(
+        f"\n{name}: arch-type distance {asset.arch_type_distance_m / MM:.1f} mm = {ratio:.2f} CCA diameters "
+        f"(type {arch_type_of(ratio)}), tortuosity {meta['tortuosity']}"
+    )
     assert arch_type_of(ratio) == EXPECTED_TYPE[name] == meta["arch_type"]
     # ... and not near a class boundary.
     assert min(abs(ratio - 1.0), abs(ratio - 2.0)) > 0.3
@@ -195,9 +207,11 @@ def test_aneurysm_is_at_least_one_and_a_half_times_the_adjacent_aorta():
     d_peak = lumen_diameter(asset, pts[peak], tangent(peak))
     d_adjacent = lumen_diameter(asset, pts[below], tangent(below))
     ratio = d_peak / d_adjacent
-    print(f"\naneurysm: cross-section diameter {d_peak / MM:.1f} mm at {np.round(pts[peak] / MM, 1)} mm; adjacent "
-          f"descending aorta (6 cm below) {d_adjacent / MM:.1f} mm; ratio {ratio:.2f}; inscribed-sphere "
-          f"ratio {rad[peak] / rad[below]:.2f}")
+    print(
+        f"\naneurysm: cross-section diameter {d_peak / MM:.1f} mm at {np.round(pts[peak] / MM, 1)} mm; adjacent "
+        f"descending aorta (6 cm below) {d_adjacent / MM:.1f} mm; ratio {ratio:.2f}; inscribed-sphere "
+        f"ratio {rad[peak] / rad[below]:.2f}"
+    )
     assert ratio >= 1.5 and rad[peak] / rad[below] >= 1.5
     assert 0.045 <= d_peak <= 0.055
     # On the proximal descending aorta / distal arch: patient left, above mid-descending, below the ostia.
@@ -275,8 +289,9 @@ def test_entry_is_open():
         pts = np.stack([c[0] + rho * np.cos(phi), y, c[2] + rho * np.sin(phi)], axis=1)
         assert not hulls.covered(pts).any(), name
         # ...while the side wall around it is covered.
-        ring = np.stack([c[0] + (r + 1 * MM) * np.cos(phi), c[1] + 0.005 + 0 * phi,
-                         c[2] + (r + 1 * MM) * np.sin(phi)], axis=1)
+        ring = np.stack(
+            [c[0] + (r + 1 * MM) * np.cos(phi), c[1] + 0.005 + 0 * phi, c[2] + (r + 1 * MM) * np.sin(phi)], axis=1
+        )
         assert hulls.covered(ring).all(), name
 
 
@@ -289,15 +304,26 @@ def test_signed_distance_matches_ray_casting():
     asset = shipped("type1")[0]
     lumen = trimesh_of(asset)
     rng = np.random.default_rng(3)
-    pts = np.concatenate([rng.uniform(asset.bounds[0], asset.bounds[1], (1500, 3)),
-                          lumen.vertices[rng.choice(len(lumen.vertices), 500)] + rng.normal(0, 0.3 * MM, (500, 3))])
+    pts = np.concatenate(
+        [
+            rng.uniform(asset.bounds[0], asset.bounds[1], (1500, 3)),
+            lumen.vertices[rng.choice(len(lumen.vertices), 500)] + rng.normal(0, 0.3 * MM, (500, 3)),
+        ]
+    )
     sd = inside_depth(asset, pts)
     far = np.abs(sd) > 1e-6
     assert np.array_equal(sd[far] > 0, lumen.contains(pts[far]))
     tri = lumen.triangles
-    some = np.arange(0, len(pts), 20)          # far and near-surface points
-    brute = np.array([np.linalg.norm(trimesh.triangles.closest_point(tri * 1e3, np.repeat(p[None] * 1e3, len(tri), 0))
-                                     - p * 1e3, axis=1).min() * 1e-3 for p in pts[some]])
+    some = np.arange(0, len(pts), 20)  # far and near-surface points
+    brute = np.array(
+        [
+            np.linalg.norm(
+                trimesh.triangles.closest_point(tri * 1e3, np.repeat(p[None] * 1e3, len(tri), 0)) - p * 1e3, axis=1
+            ).min()
+            * 1e-3
+            for p in pts[some]
+        ]
+    )
     np.testing.assert_allclose(np.abs(sd[some]), brute, atol=1e-9)
 
 

@@ -15,8 +15,18 @@ import textwrap
 import numpy as np
 import pytest
 
-from cathsim_dmc.anatomy import (ARCH_TYPE_RATIO_RANGE, PRESETS, ArchParams, arch_params, build_arch, cache_root,
-                                 generated_asset, load_asset, params_hash, sample_arch_params)
+from cathsim_dmc.anatomy import (
+    ARCH_TYPE_RATIO_RANGE,
+    PRESETS,
+    ArchParams,
+    arch_params,
+    build_arch,
+    cache_root,
+    generated_asset,
+    load_asset,
+    params_hash,
+    sample_arch_params,
+)
 from cathsim_dmc.anatomy.lumen import MESHER_VERSION
 from cathsim_dmc.sim.model_check import validate_and_compile
 
@@ -84,7 +94,7 @@ def test_generated_asset_is_built_once_then_cached(tmp_path, monkeypatch):
 
 
 def test_failed_build_leaves_no_trace(tmp_path):
-    bad = coarse(arch_type="III")       # labelled III but built as type I: the build refuses
+    bad = coarse(arch_type="III")  # labelled III but built as type I: the build refuses
     with pytest.raises(ValueError, match="labelled arch type III"):
         generated_asset(bad, cache_dir=tmp_path)
     assert list(tmp_path.iterdir()) == []
@@ -99,8 +109,16 @@ def test_concurrent_processes_share_one_complete_asset(tmp_path):
         print(json.dumps(str(generated_asset(p, cache_dir=sys.argv[1]))))
     """)
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    procs = [subprocess.Popen([sys.executable, "-c", script, str(tmp_path)], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True, env=env) for _ in range(2)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", script, str(tmp_path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        for _ in range(2)
+    ]
     outs = [p.communicate(timeout=300) for p in procs]
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err
@@ -184,8 +202,10 @@ def narrow_lcca_ratios():
     assert p.edge_length_m == 0.007 and p.lcca_diameter_m < 0.0077
     model = build_arch(p)
     grid = arch_sdf_grid(model)
-    return {1: lumen_ratios(model, build_lumen(model, grid, mesher_version=1)),
-            MESHER_VERSION: lumen_ratios(model, build_lumen(model, grid))}
+    return {
+        1: lumen_ratios(model, build_lumen(model, grid, mesher_version=1)),
+        MESHER_VERSION: lumen_ratios(model, build_lumen(model, grid)),
+    }
 
 
 def test_a_narrow_branch_keeps_its_lumen_at_the_shipped_resolution(narrow_lcca_ratios):
@@ -241,8 +261,10 @@ def test_random_generated_asset_passes_validation(seed, tmp_path_factory):
     p = sample_arch_params(seed, base="aneurysm" if seed % 10 == 9 else ("bovine" if seed % 5 == 4 else "type1"))
     folder = generated_asset(p, cache_dir=cache)
     report = validate_and_compile(folder)
-    print(f"\nseed {seed} (type {p.arch_type}, bovine {p.bovine}, aneurysm {p.aneurysm_diameter_m > 0}): "
-          + report.summary())
+    print(
+        f"\nseed {seed} (type {p.arch_type}, bovine {p.bovine}, aneurysm {p.aneurysm_diameter_m > 0}): "
+        + report.summary()
+    )
     assert report.ok, report.problems
     asset = load_asset(folder)
     assert asset.meta["arch_type"] == p.arch_type

@@ -23,8 +23,9 @@ SCRIPT = pathlib.Path(sys.executable).with_name("cathsim-aorta")
 def run(*args, env=None, timeout=600):
     cmd = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "cathsim_dmc.app.cli.aorta"]
     full_env = dict(os.environ, OMP_NUM_THREADS="1", **(env or {}))
-    return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True, timeout=timeout,
-                          env=full_env, cwd=ROOT)
+    return subprocess.run(
+        cmd + [str(a) for a in args], capture_output=True, text=True, timeout=timeout, env=full_env, cwd=ROOT
+    )
 
 
 def assert_one_line_error(proc, *needles):
@@ -64,8 +65,16 @@ def test_import_round_trip_of_a_generated_lumen(type1_mm_stl, tmp_path):
     sites = [f"sites.{k}={vec(p, 1e3)}" for k, p in sorted(src.sites.items())]
     # At the generator's own edge length its triangles suit the wall prisms as they are.
     edge_mm = src.params["edge_length_m"] * 1e3
-    proc = run("import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", *sites, f"out={out}",
-               "name=roundtrip", f"edge_mm={edge_mm}", "crop=none")   # crop=auto would remesh what it cuts
+    proc = run(
+        "import",
+        f"mesh={stl}",
+        f"entry={vec(src.entry_position, 1e3)}",
+        *sites,
+        f"out={out}",
+        "name=roundtrip",
+        f"edge_mm={edge_mm}",
+        "crop=none",
+    )  # crop=auto would remesh what it cuts
     print(proc.stdout, proc.stderr)
     assert proc.returncode == 0, proc.stderr
     assert "assuming millimetres" in proc.stdout
@@ -99,16 +108,22 @@ def test_import_remeshes_a_fine_open_mesh(tmp_path):
     """A finely triangulated lumen in metres with its open end left open: closed, remeshed, valid."""
     src = load_asset(ROOT / "assets" / "bovine")
     from cathsim_dmc.anatomy.validate import cap_faces
+
     cap = cap_faces(src)
     mesh = trimesh.Trimesh(src.visual_vertices.astype(np.float64), src.visual_faces[~cap], process=False).subdivide()
     path = tmp_path / "bovine_fine.obj"
     mesh.export(path)
     sites = [f"sites.{k}={vec(p)}" for k, p in sorted(src.sites.items())]
-    proc = run("import", path, f"entry={vec(src.entry_position)}", *sites, f"out={tmp_path / 'out'}",
-               "entry_direction=[0,1,0]")
+    proc = run(
+        "import", path, f"entry={vec(src.entry_position)}", *sites, f"out={tmp_path / 'out'}", "entry_direction=[0,1,0]"
+    )
     print(proc.stdout, proc.stderr)
     assert proc.returncode == 0, proc.stderr
-    assert "assuming metres" in proc.stdout and "remeshing" in proc.stdout and "closed 1 flat open vessel end" in proc.stdout
+    assert (
+        "assuming metres" in proc.stdout
+        and "remeshing" in proc.stdout
+        and "closed 1 flat open vessel end" in proc.stdout
+    )
     asset = load_asset(tmp_path / "out")
     assert 8_000 < asset.hull_count < 20_000
     assert validate_and_compile(asset).ok
@@ -132,26 +147,36 @@ def broken_meshes(tmp_path_factory):
     return d
 
 
-@pytest.mark.parametrize("fname, repair, needles", [
-    ("garbage.stl", "auto", ["garbage.stl", "contains no triangles"]),
-    ("open_cube.stl", "surface", ["open_cube.stl", "not watertight", "not a flat vessel end"]),
-    # The volume closes gaps up to close_mm; two missing faces of a 20 mm box are wider.
-    ("open_cube.stl", "auto", ["open_cube.stl", "the surface is open", "entry=[0.0, 0.0, 0.0] mm", "close_mm"]),
-    ("fin.stl", "surface", ["fin.stl", "non-manifold", "shared by more than two triangles"]),
-    ("empty.obj", "auto", ["empty.obj", "contains no triangles"]),
-    ("missing.stl", "auto", ["missing.stl", "no such file"]),
-])
+@pytest.mark.parametrize(
+    "fname, repair, needles",
+    [
+        ("garbage.stl", "auto", ["garbage.stl", "contains no triangles"]),
+        ("open_cube.stl", "surface", ["open_cube.stl", "not watertight", "not a flat vessel end"]),
+        # The volume closes gaps up to close_mm; two missing faces of a 20 mm box are wider.
+        ("open_cube.stl", "auto", ["open_cube.stl", "the surface is open", "entry=[0.0, 0.0, 0.0] mm", "close_mm"]),
+        ("fin.stl", "surface", ["fin.stl", "non-manifold", "shared by more than two triangles"]),
+        ("empty.obj", "auto", ["empty.obj", "contains no triangles"]),
+        ("missing.stl", "auto", ["missing.stl", "no such file"]),
+    ],
+)
 def test_broken_mesh_is_refused_with_one_line(broken_meshes, tmp_path, fname, repair, needles):
-    proc = run("import", f"mesh={broken_meshes / fname}", "entry=[0,0,0]", "sites.bca=[5,5,5]",
-               f"out={tmp_path / 'x'}", f"repair={repair}")
+    proc = run(
+        "import",
+        f"mesh={broken_meshes / fname}",
+        "entry=[0,0,0]",
+        "sites.bca=[5,5,5]",
+        f"out={tmp_path / 'x'}",
+        f"repair={repair}",
+    )
     print(assert_one_line_error(proc, *needles))
     assert not (tmp_path / "x").exists()
 
 
 def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     stl, src = type1_mm_stl
-    proc = run("import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", "sites.bca=[0,200,0]",
-               f"out={tmp_path / 'x'}")
+    proc = run(
+        "import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", "sites.bca=[0,200,0]", f"out={tmp_path / 'x'}"
+    )
     print(assert_one_line_error(proc, "sites.bca=[0.0, 200.0, 0.0] mm is outside the lumen"))
     proc = run("import", f"mesh={stl}", "entry=[0,0,0]", "sites.bca=[0,200,0]", "units=furlongs")
     print(assert_one_line_error(proc, "units='furlongs' is not valid", "mm"))
@@ -161,8 +186,13 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
 
 def test_bad_crop_and_caps_values_are_refused_before_any_work(type1_mm_stl, tmp_path):
     stl, src = type1_mm_stl
-    base = ["import", f"mesh={stl}", f"entry={vec(src.entry_position, 1e3)}", f"sites.bca={vec(src.sites['bca'], 1e3)}",
-            f"out={tmp_path / 'x'}"]
+    base = [
+        "import",
+        f"mesh={stl}",
+        f"entry={vec(src.entry_position, 1e3)}",
+        f"sites.bca={vec(src.sites['bca'], 1e3)}",
+        f"out={tmp_path / 'x'}",
+    ]
     print(assert_one_line_error(run(*base, "crop=some"), "crop='some' is not valid", "'auto', 'none'"))
     print(assert_one_line_error(run(*base, "crop_mm=2"), "crop_mm=2 is not valid", "5 mm or more"))
     print(assert_one_line_error(run(*base, f"caps=[{tmp_path / 'inlet.stl'}]"), "inlet.stl is not a file"))
@@ -172,8 +202,14 @@ def test_bad_crop_and_caps_values_are_refused_before_any_work(type1_mm_stl, tmp_
 def test_an_oversize_mesh_is_refused_before_any_grid(type1_mm_stl, tmp_path):
     stl, src = type1_mm_stl
     # The millimetre mesh read as metres: 217 m across.
-    proc = run("import", f"mesh={stl}", "units=m", f"entry={vec(src.entry_position, 1e3)}",
-               f"sites.bca={vec(src.sites['bca'], 1e3)}", f"out={tmp_path / 'x'}")
+    proc = run(
+        "import",
+        f"mesh={stl}",
+        "units=m",
+        f"entry={vec(src.entry_position, 1e3)}",
+        f"sites.bca={vec(src.sites['bca'], 1e3)}",
+        f"out={tmp_path / 'x'}",
+    )
     print(assert_one_line_error(proc, "spans 217 m with units=m", "pass the right units="))
     assert not (tmp_path / "x").exists()
 
@@ -220,16 +256,13 @@ def test_sites_that_make_no_task_are_refused_before_the_remesh(type1_mm_stl, tmp
     at_entry = src.entry_position + [0, 0.003, 0]
     proc = run("import", f"mesh={stl}", entry, f"sites.bca={vec(at_entry, 1e3)}", f"out={tmp_path / 'x'}")
     print(assert_one_line_error(proc, "sites.bca=", "coincides with the entry"))
-    proc = run("import", f"mesh={stl}", entry, f"sites.bca={vec(_shallow_bca_site(src), 1e3)}",
-               f"out={tmp_path / 'x'}")
+    proc = run("import", f"mesh={stl}", entry, f"sites.bca={vec(_shallow_bca_site(src), 1e3)}", f"out={tmp_path / 'x'}")
     print(assert_one_line_error(proc, "sites.bca=", "into its branch", "move it deeper"))
     assert not (tmp_path / "x").exists()
 
 
 def test_site_placement_checks_on_the_shipped_centerlines():
-    from cathsim_dmc.anatomy.validate import site_placement_problems
-
-    from cathsim_dmc.anatomy.validate import _lumen_mesh, lumen_profile
+    from cathsim_dmc.anatomy.validate import _lumen_mesh, lumen_profile, site_placement_problems
 
     src = load_asset(ROOT / "assets" / "type1")
     lines = {k: lumen_profile(c.points, *_lumen_mesh(src)) for k, c in src.centerlines.items()}
@@ -245,8 +278,16 @@ def test_site_placement_checks_on_the_shipped_centerlines():
 
 def test_build_a_generated_variant(tmp_path):
     out = tmp_path / "my_arch"
-    proc = run("build", "name=my_arch", "arch_type=3", "seed=7", f"out={out}", "validate=false",
-               "edge_length_m=0.005", "sdf_spacing_m=0.002")   # coarse: the arch type is the centerlines'
+    proc = run(
+        "build",
+        "name=my_arch",
+        "arch_type=3",
+        "seed=7",
+        f"out={out}",
+        "validate=false",
+        "edge_length_m=0.005",
+        "sdf_spacing_m=0.002",
+    )  # coarse: the arch type is the centerlines'
     print(proc.stdout, proc.stderr)
     assert proc.returncode == 0, proc.stderr
     asset = load_asset(out)

@@ -17,8 +17,13 @@ HYDRA_FILES = {".hydra"}
 
 
 def _tool(tool: str, args, cwd):
-    return subprocess.run([sys.executable, "-m", f"cathsim_dmc.app.cli.{tool}", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", f"cathsim_dmc.app.cli.{tool}", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
 
 
 def _write(path, content):
@@ -51,8 +56,12 @@ CLI_CASES = [
     ("eval", ["seed=-1"], "seed=-1", True),
     ("eval", ["task.max_steps=0"], "max_steps=0", True),
     ("eval", ["task.delta_m=-1"], "delta_m=-1", True),
-    ("eval", ["task.physics=quick"], "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']",
-     True),
+    (
+        "eval",
+        ["task.physics=quick"],
+        "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']",
+        True,
+    ),
     ("eval", ["task.catheter=cobra"], "catheter='cobra' is not a catheter; choose one of ['angled_5f']", True),
     ("eval", ["task.start_rotation_jitter_rad=4"], "start_rotation_jitter_rad=4.0 rad is more than a half turn", True),
     ("collect", ["task.start_insertion_jitter_m=-0.001"], "start_insertion_jitter_m=-0.001 must be", True),
@@ -82,8 +91,12 @@ CLI_CASES = [
     ("train", ["algo.actor_average_tau=2"], "actor_average_tau", True),
     ("train", ["demos.episodes=1", "demos.share=1.5"], "demos.share=1.5 must lie in [0, 1]", True),
     # 1e9 transitions of two 80x80 images: far beyond any machine's memory.
-    ("train", ["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"], "algo.buffer_size",
-     False),
+    (
+        "train",
+        ["obs=enn", "algo.buffer_size=1000000000", "trainer.total_timesteps=1000000000"],
+        "algo.buffer_size",
+        False,
+    ),
     # cathsim-collect
     ("collect", ["policy=/no/such/agent"], "checkpoint", True),
     ("collect", ["task=xyz"], "bca", True),
@@ -118,11 +131,25 @@ CLI_CASES = [
     ("export", ["seed=abc"], "seed='abc'", True),
     ("train", ["algo.buffer_size=1e12"], "write 1000000000000", True),
     ("train", ["demos.path={tmp}/no_such_data"], "no_such_data' does not exist", True),
-    pytest.param("train", ["trainer.device=cuda"], "no CUDA GPU", True,
-                 marks=pytest.mark.skipif(_has_cuda(), reason="this machine has a CUDA GPU")),
-    *[(tool, ["task.dense=maybe", *extra], "task.dense='maybe'", True)  # the task group, typed for every tool
-      for tool, extra in (("eval", []), ("collect", []), ("train", []), ("bc", ["data={tmp}/data"]),
-                          ("force", ["data={tmp}/data"]), ("bench", []), ("export", []))],
+    pytest.param(
+        "train",
+        ["trainer.device=cuda"],
+        "no CUDA GPU",
+        True,
+        marks=pytest.mark.skipif(_has_cuda(), reason="this machine has a CUDA GPU"),
+    ),
+    *[
+        (tool, ["task.dense=maybe", *extra], "task.dense='maybe'", True)  # the task group, typed for every tool
+        for tool, extra in (
+            ("eval", []),
+            ("collect", []),
+            ("train", []),
+            ("bc", ["data={tmp}/data"]),
+            ("force", ["data={tmp}/data"]),
+            ("bench", []),
+            ("export", []),
+        )
+    ],
     # a generated arch's sizes are guarded: 5 m used to build for 30-90 s before failing
     ("eval", ["aorta=custom", "+aorta.params.arch_width_m=5"], "arch_width_m=5.0 m is larger", True),
     ("eval", ["aorta=custom", "+aorta.params.sdf_spacing_m=0.00001"], "sdf_spacing_m=1e-05", True),
@@ -143,8 +170,8 @@ def internal_run(tmp_path_factory):
     """A run folder as cathsim-train leaves it: an (untrained) SAC agent on obs=internal."""
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.learning.rl.checkpoints import FINAL_MODEL, write_policy_file
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     run = tmp_path_factory.mktemp("internal_run")
     env = CathSimEnv("bca", "type1", obs="internal", max_steps=5)
@@ -175,31 +202,40 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
         assert left <= HYDRA_FILES, f"{sorted(left)} written before the error"
 
 
-@pytest.mark.parametrize("tool, arg", [("eval", "obs=nope"), ("train", "aorta=nope"), ("collect", "policy=nope"),
-                                       ("train", "algo.batch_size=0")])
+@pytest.mark.parametrize(
+    "tool, arg",
+    [("eval", "obs=nope"), ("train", "aorta=nope"), ("collect", "policy=nope"), ("train", "algo.batch_size=0")],
+)
 def test_a_refused_command_line_loads_no_simulator_or_network(tool, arg, tmp_path):
     # The choices and ranges are checked from conf/ alone, so a typo costs about a second,
     # not the import of MuJoCo, SciPy and torch.
-    code = (f"import sys\nsys.argv = ['cathsim-{tool}', {arg!r}]\nfrom cathsim_dmc.app.cli.{tool} import main\n"
-            "try:\n    main()\nexcept SystemExit as exit:\n    print(exit.code)\n"
-            "print(sorted(m for m in ('mujoco', 'dm_control', 'scipy', 'torch') if m in sys.modules))")
+    code = (
+        f"import sys\nsys.argv = ['cathsim-{tool}', {arg!r}]\nfrom cathsim_dmc.app.cli.{tool} import main\n"
+        "try:\n    main()\nexcept SystemExit as exit:\n    print(exit.code)\n"
+        "print(sorted(m for m in ('mujoco', 'dm_control', 'scipy', 'torch') if m in sys.modules))"
+    )
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert result.stdout.split("\n")[:2] == ["2", "[]"], (result.stdout, result.stderr[-2000:])
 
 
-
-@pytest.mark.parametrize("tool, arg, expected", [("eval", "task.max_steps=0", "max_steps=0"),
-                                                 ("train", "task.delta_m=5", "delta_m=5"),
-                                                 ("collect", "task.catheter=cobra", "catheter='cobra'")])
+@pytest.mark.parametrize(
+    "tool, arg, expected",
+    [
+        ("eval", "task.max_steps=0", "max_steps=0"),
+        ("train", "task.delta_m=5", "delta_m=5"),
+        ("collect", "task.catheter=cobra", "catheter='cobra'"),
+    ],
+)
 def test_a_bad_task_value_is_refused_before_hydra_makes_the_run_folder(tool, arg, expected, tmp_path):
     out = tmp_path / "out"
     result = _tool(tool, [arg, f"hydra.run.dir={out}"], tmp_path)
     assert result.returncode == 2 and expected in result.stderr, result.stderr[-2000:]
     assert not out.exists()
 
+
 def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
-    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
     from cathsim_dmc.core.registry import config_choices
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
     assert config_choices("obs") == sorted(OBSERVATION_PRESETS)
 
@@ -260,9 +296,9 @@ def _step_after_the_end(tmp_path):
 
 
 def _evaluate_zero_episodes(tmp_path):
+    from cathsim_dmc.control.policies import ForwardPolicy
     from cathsim_dmc.evaluation.rollouts import evaluate_policy
     from cathsim_dmc.suite.gym import CathSimEnv
-    from cathsim_dmc.control.policies import ForwardPolicy
 
     env = CathSimEnv("bca", "type1", max_steps=2)
     try:
@@ -276,10 +312,25 @@ def _train(algo=None, trainer=None):
     def run(tmp_path):
         from cathsim_dmc.learning.rl.train import check_training
 
-        check_training({"learning_rate": 3e-4, "batch_size": 16, "buffer_size": 100, "learning_starts": 0,
-                        "gamma": 0.99, **(algo or {})},
-                       {"total_timesteps": 10, "n_envs": 1, "checkpoint_every": 0, "eval_every": 0,
-                        "eval_episodes": 1, "device": "cpu", **(trainer or {})})
+        check_training(
+            {
+                "learning_rate": 3e-4,
+                "batch_size": 16,
+                "buffer_size": 100,
+                "learning_starts": 0,
+                "gamma": 0.99,
+                **(algo or {}),
+            },
+            {
+                "total_timesteps": 10,
+                "n_envs": 1,
+                "checkpoint_every": 0,
+                "eval_every": 0,
+                "eval_episodes": 1,
+                "device": "cpu",
+                **(trainer or {}),
+            },
+        )
 
     return run
 
@@ -329,8 +380,8 @@ def _random_pool_order(tmp_path):
 
 def _csv_trajectory(reader):
     def read(tmp_path):
-        from cathsim_dmc.learning.datasets import read_keys
         from cathsim_dmc.evaluation.trajectory import load_trajectories
+        from cathsim_dmc.learning.datasets import read_keys
 
         _write(tmp_path / "forces.csv", "step,force_n\n0,0.1\n")
         if reader == "load_trajectories":
@@ -343,50 +394,97 @@ def _csv_trajectory(reader):
 
 # (id, call with the test's tmp_path, exception type, text the message must contain)
 API_CASES = [
-    ("Guidewire(tip_angle_deg=nan)", _entity("Guidewire", tip_angle_deg=float("nan")), ValueError,
-     "Guidewire tip_angle_deg=nan must be a finite number"),
+    (
+        "Guidewire(tip_angle_deg=nan)",
+        _entity("Guidewire", tip_angle_deg=float("nan")),
+        ValueError,
+        "Guidewire tip_angle_deg=nan must be a finite number",
+    ),
     ("Guidewire(friction=-1)", _entity("Guidewire", friction=-1.0), ValueError, "Guidewire friction=-1.0"),
     ("Guidewire(n_segments=nan)", _entity("Guidewire", n_segments=float("nan")), ValueError, "n_segments=nan"),
-    ("FollowerRobot(max_insertion_speed_m_s=nan)", _entity("FollowerRobot", max_insertion_speed_m_s=float("nan")),
-     ValueError, "FollowerRobot max_insertion_speed_m_s=nan"),
-    ("FollowerRobot(max_insertion_force_n=inf)", _entity("FollowerRobot", max_insertion_force_n=float("inf")),
-     ValueError, "FollowerRobot max_insertion_force_n=inf"),
+    (
+        "FollowerRobot(max_insertion_speed_m_s=nan)",
+        _entity("FollowerRobot", max_insertion_speed_m_s=float("nan")),
+        ValueError,
+        "FollowerRobot max_insertion_speed_m_s=nan",
+    ),
+    (
+        "FollowerRobot(max_insertion_force_n=inf)",
+        _entity("FollowerRobot", max_insertion_force_n=float("inf")),
+        ValueError,
+        "FollowerRobot max_insertion_force_n=inf",
+    ),
     ("Aorta(friction=nan)", _entity("Aorta", friction=float("nan")), ValueError, "Aorta friction=nan"),
-    ("Aorta(contact_margin_m=inf)", _entity("Aorta", contact_margin_m=float("inf")), ValueError,
-     "Aorta contact_margin_m=inf"),
-    ("tasks.load(guidewire={tip_angle_deg: nan})", _load(guidewire={"tip_angle_deg": float("nan")}), ValueError,
-     "tip_angle_deg=nan"),
+    (
+        "Aorta(contact_margin_m=inf)",
+        _entity("Aorta", contact_margin_m=float("inf")),
+        ValueError,
+        "Aorta contact_margin_m=inf",
+    ),
+    (
+        "tasks.load(guidewire={tip_angle_deg: nan})",
+        _load(guidewire={"tip_angle_deg": float("nan")}),
+        ValueError,
+        "tip_angle_deg=nan",
+    ),
     ("tasks.load(blood_drag=-1)", _load(blood_drag=-1), ValueError, "blood_drag=-1"),
     ("tasks.load(blood_drag='yes')", _load(blood_drag="yes"), ValueError, "blood_drag='yes'"),
     ("tasks.load(delta_m=5)", _load(delta_m=5), ValueError, "delta_m=5 m is larger than any meaningful success radius"),
     ("tasks.load(bogus=1)", _load(bogus=1), ValueError, "tasks.load: unknown keyword argument 'bogus'; valid: "),
-    ("tasks.load(guidewire={bogus: 1})", _load(guidewire={"bogus": 1}), ValueError,
-     "guidewire: unknown keyword argument 'bogus'; valid: contact_solimp"),
-    ("tasks.load(robot={speed: 1})", _load(robot={"speed": 1}), ValueError,
-     "robot: unknown keyword argument 'speed'; valid: channel_clearance_m"),
+    (
+        "tasks.load(guidewire={bogus: 1})",
+        _load(guidewire={"bogus": 1}),
+        ValueError,
+        "guidewire: unknown keyword argument 'bogus'; valid: contact_solimp",
+    ),
+    (
+        "tasks.load(robot={speed: 1})",
+        _load(robot={"speed": 1}),
+        ValueError,
+        "robot: unknown keyword argument 'speed'; valid: channel_clearance_m",
+    ),
     ("gymnasium.make(bogus=1)", _gym_make(bogus=1), ValueError, "unknown keyword argument 'bogus'"),
     ("a target site outside the lumen", _site_outside_the_lumen, ValueError, "cathsim-aorta validate"),
     ("aorta order='bogus'", _random_pool_order, ValueError, "order='bogus'; choose one of"),
     ("a CSV as a trajectory file", _csv_trajectory("load_trajectories"), ValueError, "is not a trajectory file"),
     ("a CSV as a dataset file", _csv_trajectory("read_keys"), ValueError, "not an .npz archive"),
     ("tasks.load(image_size=0)", _load(image_size=0), ValueError, "image_size=0"),
-    ("tasks.load(image_size=300, renderer='gl')", _load(obs="pixels", image_size=300, renderer="gl"), ValueError,
-     "image_size=300 is too large for the gl renderer and the camera style"),
-    ("tasks.load(obs='enn', image_size=200, renderer='gl')", _load(obs="enn", image_size=200, renderer="gl"),
-     ValueError, "choose 1 to 120"),
-    ("tasks.load(obs='pixels', image_size=300)", _load(obs="pixels", image_size=300), ValueError,
-     "image_size=300 is too large for the raster renderer and the camera style"),
-    ("CathSimEnv(render_size=960)", _gym_env(render_mode="rgb_array", render_size=960), ValueError,
-     "render_size=960"),
+    (
+        "tasks.load(image_size=300, renderer='gl')",
+        _load(obs="pixels", image_size=300, renderer="gl"),
+        ValueError,
+        "image_size=300 is too large for the gl renderer and the camera style",
+    ),
+    (
+        "tasks.load(obs='enn', image_size=200, renderer='gl')",
+        _load(obs="enn", image_size=200, renderer="gl"),
+        ValueError,
+        "choose 1 to 120",
+    ),
+    (
+        "tasks.load(obs='pixels', image_size=300)",
+        _load(obs="pixels", image_size=300),
+        ValueError,
+        "image_size=300 is too large for the raster renderer and the camera style",
+    ),
+    ("CathSimEnv(render_size=960)", _gym_env(render_mode="rgb_array", render_size=960), ValueError, "render_size=960"),
     ("tasks.load(delta_m=-1)", _load(delta_m=-1), ValueError, "delta_m=-1"),
     ("tasks.load(max_steps=0)", _load(max_steps=0), ValueError, "max_steps=0"),
     ("tasks.load(success_reward=nan)", _load(success_reward=float("nan")), ValueError, "success_reward=nan"),
     ("tasks.load(aim_weight=2)", _load(aim_weight=2.0), ValueError, "aim_weight was removed on 2026-11-27"),
-    ("tasks.load(insertion_limit_margin_m=0)", _load(insertion_limit_margin_m=0.0), ValueError,
-     "insertion_limit_margin_m was removed on 2026-11-27"),
-    ("tasks.load(aorta='random', aim_weight=2)", _load_random(aim_weight=2.0), ValueError,
-     "aim_weight was removed"),
-    ("tasks.load(physics='quick')", _load(physics="quick"), ValueError, "choose one of ['accurate', 'fast', 'fast_field']"),
+    (
+        "tasks.load(insertion_limit_margin_m=0)",
+        _load(insertion_limit_margin_m=0.0),
+        ValueError,
+        "insertion_limit_margin_m was removed on 2026-11-27",
+    ),
+    ("tasks.load(aorta='random', aim_weight=2)", _load_random(aim_weight=2.0), ValueError, "aim_weight was removed"),
+    (
+        "tasks.load(physics='quick')",
+        _load(physics="quick"),
+        ValueError,
+        "choose one of ['accurate', 'fast', 'fast_field']",
+    ),
     ("negative Young's modulus", _load(guidewire={"youngs_modulus_pa": -40e9}), ValueError, "youngs_modulus_pa"),
     ("negative tip modulus", _load(guidewire={"tip_youngs_modulus_pa": -1.0}), ValueError, "tip_youngs_modulus_pa"),
     ("step before reset", _step_before_reset, RuntimeError, "reset()"),
@@ -413,8 +511,15 @@ def test_continuing_a_dataset_records_a_truncated_shard_again(tmp_path):
     # A collection killed while writing a shard used to make the next run fail with BadZipFile.
     from cathsim_dmc.learning.collect import SHARD_FORMAT, collect
 
-    settings = dict(task="bca", aorta="type1", policy="forward", episodes_per_shard=1, seed=0,
-                    task_options={"max_steps": 3}, show_progress=False)
+    settings = dict(
+        task="bca",
+        aorta="type1",
+        policy="forward",
+        episodes_per_shard=1,
+        seed=0,
+        task_options={"max_steps": 3},
+        show_progress=False,
+    )
     collect(tmp_path, episodes=2, **settings)
     shard = tmp_path / SHARD_FORMAT.format(1)
     whole = shard.read_bytes()
@@ -431,17 +536,26 @@ def test_a_training_size_beyond_the_data_is_labelled_with_the_samples_it_has():
     episodes = np.repeat(np.arange(6), 4)
     images = rng.integers(0, 255, (len(episodes), 1, 80, 80), dtype=np.uint8)
     labels = []
-    report = train_force_sizes(images, rng.random(len(episodes)), episodes,
-                               ForceConfig(sizes=(1_000_000,), epochs=1, min_updates=1, test_fraction=0.34),
-                               progress=lambda size, epoch, epochs, best: labels.append(size))
+    report = train_force_sizes(
+        images,
+        rng.random(len(episodes)),
+        episodes,
+        ForceConfig(sizes=(1_000_000,), epochs=1, min_updates=1, test_fraction=0.34),
+        progress=lambda size, epoch, epochs, best: labels.append(size),
+    )
     trained = report["sizes"][0]["train_samples"]
     assert trained < 1_000_000 and set(labels) == {trained}
     assert f"{trained:,} (all there is; 1,000,000 asked)" in markdown(report)
 
 
 def test_a_generated_arch_too_large_is_refused_before_any_build(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.aorta", "build", "arch_width_m=5",
-                             f"out={tmp_path / 'arch'}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.aorta", "build", "arch_width_m=5", f"out={tmp_path / 'arch'}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and "arch_width_m=5.0 m is larger" in lines[0], result.stderr
     assert not any(tmp_path.iterdir()), "nothing may be written before the error"

@@ -28,7 +28,7 @@ def test_network_is_the_papers():
     convs = [m for m in net.encoder.modules() if isinstance(m, torch.nn.Conv2d)]
     assert [(c.out_channels, c.kernel_size[0], c.stride[0]) for c in convs] == [(32, 8, 4), (64, 4, 2), (64, 3, 1)]
     linears = [m for m in net.modules() if isinstance(m, torch.nn.Linear)]
-    assert [(l.in_features, l.out_features) for l in linears] == [(2304, 512), (512, 2)]
+    assert [(layer.in_features, layer.out_features) for layer in linears] == [(2304, 512), (512, 2)]
     mean, log_std, z = net(torch.zeros(3, 1, 80, 80, dtype=torch.uint8))
     assert mean.shape == (3, 2) and log_std.shape == (3, 2) and z is None
     # The log-std is one learned parameter, the same for every image.
@@ -47,7 +47,7 @@ def test_loss_terms():
     # Entropy is rewarded (lowers the loss), L2 penalised. The Gaussian's entropy per action
     # dimension is 1/2 log(2 pi e) + log std; the L2 term is the sum of squared weights.
     entropy = float(np.log(2 * np.pi * np.e) + log_std[0].sum())
-    l2 = sum(float((m.weight ** 2).sum()) for m in net.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear)))
+    l2 = sum(float((m.weight**2).sum()) for m in net.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear)))
     assert terms["entropy"] == pytest.approx(entropy, rel=1e-5) and terms["l2"] == pytest.approx(l2, rel=1e-5)
     with_entropy, _ = bc_loss(net, images, actions, entropy_coef=0.1, l2_coef=0.0)
     assert with_entropy.item() == pytest.approx(base.item() - 0.1 * entropy, rel=1e-5)
@@ -109,8 +109,7 @@ def test_stacked_frames_are_the_images_before_in_the_same_episode():
     assert stacked.shape == (7, 3, 2, 2)
     # Oldest first; an episode's first image repeats where there is no earlier one, and
     # nothing crosses from episode 0 into episode 1.
-    assert stacked[:, :, 0, 0].tolist() == [[0, 0, 0], [0, 0, 1], [0, 1, 2], [1, 2, 3],
-                                             [4, 4, 4], [4, 4, 5], [4, 5, 6]]
+    assert stacked[:, :, 0, 0].tolist() == [[0, 0, 0], [0, 0, 1], [0, 1, 2], [1, 2, 3], [4, 4, 4], [4, 4, 5], [4, 5, 6]]
     assert stack_frames(images, episode, step, 1) is images
     with pytest.raises(ValueError, match="step order"):
         stack_frames(images, episode, np.array([1, 2, 3, 4, 2, 3, 4]), 2)
@@ -143,36 +142,72 @@ def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
 
 
 def _bc(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.bc", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.bc", *args], cwd=cwd, capture_output=True, text=True, timeout=900
+    )
 
 
 def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
     from cathsim_dmc.learning.collect import collect
 
-    collect(tmp_path / "data", "bca", "type1", "expert", episodes=3, episodes_per_shard=3, seed=0,
-            task_options={"max_steps": 10}, show_progress=False)
-    result = _bc([f"data={tmp_path}/data", "bc.epochs=3", "eval_episodes=1", "task.max_steps=5", "video=false",
-                  "progress_bar=false", f"hydra.run.dir={tmp_path}/bc"], tmp_path)
+    collect(
+        tmp_path / "data",
+        "bca",
+        "type1",
+        "expert",
+        episodes=3,
+        episodes_per_shard=3,
+        seed=0,
+        task_options={"max_steps": 10},
+        show_progress=False,
+    )
+    result = _bc(
+        [
+            f"data={tmp_path}/data",
+            "bc.epochs=3",
+            "eval_episodes=1",
+            "task.max_steps=5",
+            "video=false",
+            "progress_bar=false",
+            f"hydra.run.dir={tmp_path}/bc",
+        ],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     history = json.loads((tmp_path / "bc" / "history.json").read_text())
     assert len(history["epochs"]) == 3 and history["val_samples"] == 10
     assert json.loads((tmp_path / "bc" / "eval" / "metrics.json").read_text())["policy"] == "bc-pixels"
-    ev = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", f"policy={tmp_path}/bc", "episodes=1",
-                         "task.max_steps=4", "video=false", f"hydra.run.dir={tmp_path}/eval"],
-                        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    ev = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cathsim_dmc.app.cli.eval",
+            f"policy={tmp_path}/bc",
+            "episodes=1",
+            "task.max_steps=4",
+            "video=false",
+            f"hydra.run.dir={tmp_path}/eval",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert ev.returncode == 0, ev.stderr[-2000:]
     assert json.loads((tmp_path / "eval" / "metrics.json").read_text())["summary"]["episode_length"]["mean"] == 4
 
 
-@pytest.mark.parametrize("make, args, expected", [
-    (None, [], "data="),
-    (None, ["data=/no/such/dataset"], "/no/such/dataset"),
-    ("empty_dir", [], "holds no dataset"),
-    ("empty_file", [], "no samples"),
-    ("bad_file", [], "not a readable"),
-    (None, ["bc.image_key=depth"], "pixels"),
-])
+@pytest.mark.parametrize(
+    "make, args, expected",
+    [
+        (None, [], "data="),
+        (None, ["data=/no/such/dataset"], "/no/such/dataset"),
+        ("empty_dir", [], "holds no dataset"),
+        ("empty_file", [], "no samples"),
+        ("bad_file", [], "not a readable"),
+        (None, ["bc.image_key=depth"], "pixels"),
+    ],
+)
 def test_bad_data_is_one_line_and_exit_2(tmp_path, make, args, expected):
     from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
 
@@ -180,8 +215,12 @@ def test_bad_data_is_one_line_and_exit_2(tmp_path, make, args, expected):
     data.mkdir()
     if make == "empty_file":
         recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), record_observations=True)
-        recorder.save(data / "shard_00000.npz", compress=False, obs_pixels=np.zeros((0, 1, 80, 80), np.uint8),
-                      start_obs_pixels=np.zeros((0, 1, 80, 80), np.uint8))
+        recorder.save(
+            data / "shard_00000.npz",
+            compress=False,
+            obs_pixels=np.zeros((0, 1, 80, 80), np.uint8),
+            start_obs_pixels=np.zeros((0, 1, 80, 80), np.uint8),
+        )
     elif make == "bad_file":
         (data / "shard_00000.npz").write_bytes(b"not an npz")
     if make is not None:

@@ -5,11 +5,10 @@ import numpy as np
 import pytest
 from dm_control import composer
 
-from cathsim_dmc.sim import model_cache
-
 from cathsim_dmc import tasks
-from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import Aorta
+from cathsim_dmc.sim import model_cache
+from cathsim_dmc.sim.arena import OperatingArena
 
 
 @pytest.fixture

@@ -5,13 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from cathsim_dmc.evaluation import fidelity
-
 from cathsim_dmc import tasks
+from cathsim_dmc.control.expert import CenterlineExpert
 from cathsim_dmc.entities import Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterOverWire
 from cathsim_dmc.entities.guidewire import second_moment_of_area
-from cathsim_dmc.control.expert import CenterlineExpert
+from cathsim_dmc.evaluation import fidelity
 from cathsim_dmc.suite.gym import CathSimEnv
 
 
@@ -79,8 +78,12 @@ def test_a_parked_catheter_leaves_the_episode_unchanged():
     for catheter in (None, "angled_5f"):
         env = tasks.load("bca", "type1", seed=3, catheter=catheter)
         env.reset()
-        runs.append([env.step(a if catheter is None else np.append(a, 0.0)).observation["joint_pos"][:69].copy()
-                     for a in actions])
+        runs.append(
+            [
+                env.step(a if catheter is None else np.append(a, 0.0)).observation["joint_pos"][:69].copy()
+                for a in actions
+            ]
+        )
     assert np.array_equal(np.array(runs[0]), np.array(runs[1]))
 
 

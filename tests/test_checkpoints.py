@@ -36,8 +36,9 @@ def _configs(**trainer):
     # A small network keeps each update cheap; what is checked does not depend on its size.
     algo.update(learning_starts=10, batch_size=16, net_arch=[32, 32])
     base = OmegaConf.to_container(cfg.trainer, resolve=True)
-    base.update(eval_every=0, progress_bar=False, video=False, save_replay_buffer=True, checkpoint_every=20,
-                torch_threads=1)
+    base.update(
+        eval_every=0, progress_bar=False, video=False, save_replay_buffer=True, checkpoint_every=20, torch_threads=1
+    )
     base.update(trainer)
     return algo, base
 
@@ -46,8 +47,9 @@ def _train(run_dir, total, resume=False, callbacks=None):
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 15})
     algo, trainer = _configs(total_timesteps=total)
     try:
-        return training.train(env, run_dir, algo, trainer, 0, "internal", "bca", "type1", resume=resume,
-                              callbacks=callbacks)
+        return training.train(
+            env, run_dir, algo, trainer, 0, "internal", "bca", "type1", resume=resume, callbacks=callbacks
+        )
     finally:
         env.close()
 
@@ -76,8 +78,12 @@ def test_resume_continues_from_the_saved_weights_buffer_and_step_count(tmp_path)
         """What the resumed run starts from, and how many environment steps it takes."""
 
         def _on_training_start(self):
-            self.start = dict(actor=_weights(self.model.actor), critic=_weights(self.model.critic),
-                              steps=self.model.num_timesteps, rows=self.model.replay_buffer.pos)
+            self.start = dict(
+                actor=_weights(self.model.actor),
+                critic=_weights(self.model.critic),
+                steps=self.model.num_timesteps,
+                rows=self.model.replay_buffer.pos,
+            )
             self.calls = 0
 
         def _on_step(self):
@@ -239,8 +245,15 @@ def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(t
     model.save(tmp_path / "final_model.zip")
 
     def policy_file(env_options):
-        info = {"algo": "sac", "obs": "internal", "image_options": {}, "task": "bca", "aorta": "type1",
-                "env_options": env_options, "normalize_observations": False}
+        info = {
+            "algo": "sac",
+            "obs": "internal",
+            "image_options": {},
+            "task": "bca",
+            "aorta": "type1",
+            "env_options": env_options,
+            "normalize_observations": False,
+        }
         (tmp_path / run_files.POLICY_FILE).write_text(json.dumps(info))
 
     policy_file({"insertion_limit_margin_m": 0.02, "physics": "fast"})
@@ -254,15 +267,17 @@ def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(t
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):
-    from cathsim_dmc.learning.datasets import expand_paths
     from cathsim_dmc.evaluation.trajectory import save_npz
+    from cathsim_dmc.learning.datasets import expand_paths
 
     save_npz(tmp_path / "shard_00000.npz", {"x": np.zeros(3)})
     for stale in ("shard_00001.npz.tmp.npz", ".shard_00002.tmp.npz"):  # the old and the new temporary names
         (tmp_path / stale).write_bytes(b"half a file")
     assert [p.name for p in expand_paths(tmp_path)] == ["shard_00000.npz"]
-    assert sorted(p.name for p in run_files.remove_temporaries(tmp_path)) == [".shard_00002.tmp.npz",
-                                                                               "shard_00001.npz.tmp.npz"]
+    assert sorted(p.name for p in run_files.remove_temporaries(tmp_path)) == [
+        ".shard_00002.tmp.npz",
+        "shard_00001.npz.tmp.npz",
+    ]
     assert [p.name for p in tmp_path.iterdir()] == ["shard_00000.npz"]
 
 
@@ -270,13 +285,26 @@ def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp
 def test_cathsim_train_killed_at_random_moments_resumes_each_time(tmp_path):
     """kill -9 of the real command while it trains and checkpoints (with the replay buffer)."""
     run = tmp_path / "run"
-    args = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-            "trainer.checkpoint_every=25", "trainer.save_replay_buffer=true", "trainer.eval_every=0",
-            "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
+    args = [
+        "obs=internal",
+        "demos=none",
+        "task.max_steps=20",
+        "algo.learning_starts=20",
+        "algo.batch_size=16",
+        "trainer.checkpoint_every=25",
+        "trainer.save_replay_buffer=true",
+        "trainer.eval_every=0",
+        "trainer.final_eval_episodes=1",
+        "trainer.video=false",
+        "trainer.progress_bar=false",
+    ]
     command = [sys.executable, "-m", "cathsim_dmc.app.cli.train"]
     rng = np.random.default_rng(0)
-    process = subprocess.Popen([*command, *args, "trainer.total_timesteps=400", f"hydra.run.dir={run}"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(
+        [*command, *args, "trainer.total_timesteps=400", f"hydra.run.dir={run}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     for kill in range(4):
         last = run / "checkpoints" / "last.zip"
         deadline = time.time() + 300
@@ -287,9 +315,11 @@ def test_cathsim_train_killed_at_random_moments_resumes_each_time(tmp_path):
         process.wait()
         with zipfile.ZipFile(last) as archive:  # always a whole file
             assert archive.testzip() is None
-        process = subprocess.Popen([*command, f"resume={run}", "trainer.total_timesteps=400",
-                                    f"hydra.run.dir={tmp_path}/resume{kill}"],
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        process = subprocess.Popen(
+            [*command, f"resume={run}", "trainer.total_timesteps=400", f"hydra.run.dir={tmp_path}/resume{kill}"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
     _, stderr = process.communicate(timeout=900)
     assert process.returncode == 0, stderr[-2000:]
     ckpt = run / "checkpoints"

@@ -12,13 +12,23 @@ from cathsim_dmc.evaluation.trajectory import load_trajectories
 
 
 def _run(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.eval", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_eval_writes_trajectories_and_video(tmp_path):
-    result = _run(["task=lcca", "aorta=type1", "policy=forward", "episodes=1", "task.max_steps=12",
-                   f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    result = _run(
+        [
+            "task=lcca",
+            "aorta=type1",
+            "policy=forward",
+            "episodes=1",
+            "task.max_steps=12",
+            f"hydra.run.dir={tmp_path}/run",
+        ],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     data = load_trajectories(tmp_path / "run" / "trajectories.npz")
     assert len(data["step"]) == 12 and data["truncated"][-1]
@@ -43,8 +53,10 @@ def test_eval_writes_trajectories_and_video(tmp_path):
 
 
 def test_expert_reaches_the_lcca(tmp_path):
-    result = _run(["task=lcca", "aorta=type1", "policy=expert", "episodes=1", "video=false",
-                   f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    result = _run(
+        ["task=lcca", "aorta=type1", "policy=expert", "episodes=1", "video=false", f"hydra.run.dir={tmp_path}/run"],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     report = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert report["summary"]["success_pct"]["mean"] == 100
@@ -61,8 +73,19 @@ def test_expert_reaches_the_lcca(tmp_path):
 
 
 def test_multirun_writes_one_combined_table(tmp_path):
-    result = _run(["-m", "task=bca,lcca", "aorta=type1", "policy=forward", "episodes=1", "task.max_steps=3",
-                   "video=false", f"hydra.sweep.dir={tmp_path}/sweep"], tmp_path)
+    result = _run(
+        [
+            "-m",
+            "task=bca,lcca",
+            "aorta=type1",
+            "policy=forward",
+            "episodes=1",
+            "task.max_steps=3",
+            "video=false",
+            f"hydra.sweep.dir={tmp_path}/sweep",
+        ],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     lines = (tmp_path / "sweep" / "metrics.md").read_text().strip().splitlines()
     assert len(lines) == 4 and lines[2].startswith("| BCA |") and lines[3].startswith("| LCCA |")
@@ -80,9 +103,23 @@ def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
 
 
 def test_bench_prints_a_row_per_setting(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.bench", "task=lcca", "aortas=[type1]", "presets=[internal]",
-                             "steps=5", "repeats=1", f"hydra.run.dir={tmp_path}/bench"],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cathsim_dmc.app.cli.bench",
+            "task=lcca",
+            "aortas=[type1]",
+            "presets=[internal]",
+            "steps=5",
+            "repeats=1",
+            f"hydra.run.dir={tmp_path}/bench",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert result.returncode == 0, result.stderr
     rows = [line for line in result.stdout.splitlines() if line.startswith("| type1 | internal")]
     # One row per physics setting, side by side.
@@ -103,12 +140,23 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     from cathsim_dmc.app.cli._common import env_kwargs
     from cathsim_dmc.learning.agents import CheckpointPolicy
 
-    train = _compose("train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7",
-                               "experimental.extra_observations=[wire_slack]"])
+    train = _compose(
+        "train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7", "experimental.extra_observations=[wire_slack]"]
+    )
     scored = env_kwargs(train)
-    assert scored == {"task": "bca", "aorta": "type1", "obs": "enn", "delta_m": 0.004, "success_reward": 10.0,
-                      "dense": True, "max_steps": 7, "physics": "fast",
-                      "renderer": "raster", "style": "fluoro", "extra_observations": ("wire_slack",)}
+    assert scored == {
+        "task": "bca",
+        "aorta": "type1",
+        "obs": "enn",
+        "delta_m": 0.004,
+        "success_reward": 10.0,
+        "dense": True,
+        "max_steps": 7,
+        "physics": "fast",
+        "renderer": "raster",
+        "style": "fluoro",
+        "extra_observations": ("wire_slack",),
+    }
     # Only training uses the shaping reward: evaluation scores the paper's task.
     assert env_kwargs(train, training=True) == {**scored, "reward": "geodesic", "progress_weight": 1.0}
     # The obs group is untyped: its old `extra` key says where it went instead of being ignored.
@@ -117,9 +165,18 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     # A checkpoint brings its own preset and options, whatever the tool's config says.
     policy = CheckpointPolicy(None, "internal", {"style": "camera"}, {"extra_observations": ["drive_force"]})
     assert env_kwargs(_compose("eval", ["obs=enn"]), policy=policy) == {
-        "task": "bca", "aorta": "type1", "obs": "internal", "delta_m": 0.004, "success_reward": 10.0, "dense": True,
-        "max_steps": 300, "physics": "fast", "renderer": "raster", "style": "camera",
-        "extra_observations": ["drive_force"]}
+        "task": "bca",
+        "aorta": "type1",
+        "obs": "internal",
+        "delta_m": 0.004,
+        "success_reward": 10.0,
+        "dense": True,
+        "max_steps": 300,
+        "physics": "fast",
+        "renderer": "raster",
+        "style": "camera",
+        "extra_observations": ["drive_force"],
+    }
     assert env_kwargs(_compose("eval", ["task.physics=accurate"]))["physics"] == "accurate"
     # ...and its solver settings: an agent trained under accurate is scored under accurate.
     trained_accurate = CheckpointPolicy(None, "internal", {}, {"physics": "accurate"})
@@ -135,8 +192,9 @@ def test_an_asset_folder_is_an_aorta_and_names_the_run_and_the_table(tmp_path):
 
     folder = tmp_path / "my_phantom"
     shutil.copytree(resolve_asset("type1"), folder)
-    result = _run(["task=bca", f"aorta={folder}", "policy=forward", "episodes=1", "task.max_steps=3", "video=false"],
-                  tmp_path)
+    result = _run(
+        ["task=bca", f"aorta={folder}", "policy=forward", "episodes=1", "task.max_steps=3", "video=false"], tmp_path
+    )
     assert result.returncode == 0, result.stderr
     runs = list((tmp_path / "outputs" / "eval").iterdir())
     assert [run.name for run in runs] == ["bca-my_phantom"]

@@ -11,7 +11,8 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from cathsim_dmc.app import train_schema as config, tool_schemas as config_tools
+from cathsim_dmc.app import tool_schemas as config_tools
+from cathsim_dmc.app import train_schema as config
 from cathsim_dmc.core.shipped import conf_root
 
 CATHSIM_TRAIN = str(Path(sys.executable).parent / "cathsim-train")  # the installed console script
@@ -28,14 +29,20 @@ def _one_line(result) -> str:
     return lines[0]
 
 
-@pytest.mark.parametrize("args, expected", [
-    (["trainer.total_timestep=5"], "unknown option trainer.total_timestep"),
-    (["algo.lerning_rate=1"], "unknown option algo.lerning_rate"),
-    (["demos.bc_filter=q"], "unknown option demos.bc_filter"),  # removed
-    (["trainer.total_timesteps=abc"], "trainer.total_timesteps='abc'"),
-    (["trainer.total_timesteps=5.5"], "trainer.total_timesteps=5.5"),
-    (["algo.buffer_size=1e12"], "algo.buffer_size=1e+12 is written as a decimal number; an integer is needed: write 1000000000000"),
-])
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["trainer.total_timestep=5"], "unknown option trainer.total_timestep"),
+        (["algo.lerning_rate=1"], "unknown option algo.lerning_rate"),
+        (["demos.bc_filter=q"], "unknown option demos.bc_filter"),  # removed
+        (["trainer.total_timesteps=abc"], "trainer.total_timesteps='abc'"),
+        (["trainer.total_timesteps=5.5"], "trainer.total_timesteps=5.5"),
+        (
+            ["algo.buffer_size=1e12"],
+            "algo.buffer_size=1e+12 is written as a decimal number; an integer is needed: write 1000000000000",
+        ),
+    ],
+)
 def test_a_misspelled_key_or_a_wrong_type_fails_at_composition_in_one_line(args, expected, tmp_path):
     run = tmp_path / "run"
     line = _one_line(_train([*args, f"hydra.run.dir={run}"], tmp_path))
@@ -43,13 +50,16 @@ def test_a_misspelled_key_or_a_wrong_type_fails_at_composition_in_one_line(args,
     assert not run.exists()  # refused before Hydra made the run folder
 
 
-@pytest.mark.parametrize("args, expected", [
-    (["trainer.total_timesteps=0"], "trainer.total_timesteps=0 must be a whole number >= 1"),
-    (["algo.learning_rate=0"], "algo.learning_rate=0.0 must be a finite number > 0"),
-    (["demos.share=1.5"], "demos.share=1.5 must lie in [0, 1]"),
-    (["algo.net_arch=[256,0]"], "algo.net_arch=0"),
-    (["trainer.device=tpu"], "trainer.device='tpu'; choose one of ['auto', 'cpu', 'cuda']"),
-])
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["trainer.total_timesteps=0"], "trainer.total_timesteps=0 must be a whole number >= 1"),
+        (["algo.learning_rate=0"], "algo.learning_rate=0.0 must be a finite number > 0"),
+        (["demos.share=1.5"], "demos.share=1.5 must lie in [0, 1]"),
+        (["algo.net_arch=[256,0]"], "algo.net_arch=0"),
+        (["trainer.device=tpu"], "trainer.device='tpu'; choose one of ['auto', 'cpu', 'cuda']"),
+    ],
+)
 def test_a_value_out_of_range_fails_in_one_line_before_any_run_folder_exists(args, expected, tmp_path):
     run = tmp_path / "run"
     assert expected in _one_line(_train([*args, f"hydra.run.dir={run}"], tmp_path))
@@ -83,8 +93,9 @@ def _effective(group, option) -> dict:
     return {**values, **body}
 
 
-GROUP_OPTIONS = [(group, path.stem) for group in config_tools.GROUP_SCHEMAS
-                 for path in sorted((conf_root() / group).glob("*.yaml"))]
+GROUP_OPTIONS = [
+    (group, path.stem) for group in config_tools.GROUP_SCHEMAS for path in sorted((conf_root() / group).glob("*.yaml"))
+]
 
 
 @pytest.mark.parametrize("group, option", GROUP_OPTIONS, ids=[f"{g}/{o}" for g, o in GROUP_OPTIONS])
@@ -92,8 +103,11 @@ def test_each_option_file_sets_only_what_differs_from_what_it_extends(group, opt
     body = _yaml(group, option)
     parents = [p for p in body.pop("defaults", []) if p != "_self_"]
     assert parents and parents[0] in (config_tools.SCHEMA, *[o for g, o in GROUP_OPTIONS if g == group])
-    inherited = (_schema_defaults(config_tools.GROUP_SCHEMAS[group]) if parents[0] == config_tools.SCHEMA
-                 else _effective(group, parents[0]))
+    inherited = (
+        _schema_defaults(config_tools.GROUP_SCHEMAS[group])
+        if parents[0] == config_tools.SCHEMA
+        else _effective(group, parents[0])
+    )
     restated = {key: value for key, value in body.items() if inherited.get(key) == value and key != "name"}
     assert not restated, f"{group}/{option}.yaml restates defaults it inherits: {restated}"
     assert set(body) <= set(inherited), "a key the schema does not know"
@@ -118,14 +132,21 @@ def test_the_default_train_config_is_the_schema_plus_what_the_option_files_set()
     lcca = _compose(overrides=["task=lcca"])
     assert lcca["demos"] == {**_effective("demos", "expert"), **_yaml("demos_for_task", "expert_lcca")}
     # The recipe as docs/training.md states it.
-    assert (composed["trainer"]["total_timesteps"], composed["demos"]["episodes"], composed["demos"]["bc_weight"],
-            composed["algo"]["ent_coef"], composed["algo"]["actor_average_tau"]) == (8000, 100, 0.5, "auto_0.05", 0.005)
+    assert (
+        composed["trainer"]["total_timesteps"],
+        composed["demos"]["episodes"],
+        composed["demos"]["bc_weight"],
+        composed["algo"]["ent_coef"],
+        composed["algo"]["actor_average_tau"],
+    ) == (8000, 100, 0.5, "auto_0.05", 0.005)
 
 
 def test_the_schema_module_needs_no_simulator_and_no_cli():
-    code = ("import sys, cathsim_dmc.app.train_schema; "
-            "bad = [m for m in ('dm_control', 'mujoco', 'torch', 'cathsim_dmc.app.cli') if m in sys.modules]; "
-            "assert not bad, bad")
+    code = (
+        "import sys, cathsim_dmc.app.train_schema; "
+        "bad = [m for m in ('dm_control', 'mujoco', 'torch', 'cathsim_dmc.app.cli') if m in sys.modules]; "
+        "assert not bad, bad"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -219,14 +240,17 @@ def test_an_old_run_config_has_its_moved_keys_translated_and_its_inert_removed_k
     assert cfg.trainer.total_timesteps == 30 and cfg.algo.batch_size == 16  # the run's own settings
 
 
-@pytest.mark.parametrize("change, expected", [
-    ({"demos": {"episodes": 10, "bc_weight": 0.5, "bc_filter": "q"}}, "demos.bc_filter='q'"),
-    ({"trainer": {"confirm_episodes": 20}}, "trainer.confirm_episodes=20"),
-    ({"algo": {"actor_learning_rate_scale": 0.3}}, "algo.actor_learning_rate_scale=0.3"),
-    ({"task": {"insertion_limit_margin_m": 0.02}}, "task.insertion_limit_margin_m=0.02"),
-    ({"reward": {"name": "aim", "aim_weight": 2.0}}, "reward=aim"),
-    ({"experimental": {"expert_end_game": "relay"}}, "experimental.expert_end_game='relay'"),
-])
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        ({"demos": {"episodes": 10, "bc_weight": 0.5, "bc_filter": "q"}}, "demos.bc_filter='q'"),
+        ({"trainer": {"confirm_episodes": 20}}, "trainer.confirm_episodes=20"),
+        ({"algo": {"actor_learning_rate_scale": 0.3}}, "algo.actor_learning_rate_scale=0.3"),
+        ({"task": {"insertion_limit_margin_m": 0.02}}, "task.insertion_limit_margin_m=0.02"),
+        ({"reward": {"name": "aim", "aim_weight": 2.0}}, "reward=aim"),
+        ({"experimental": {"expert_end_game": "relay"}}, "experimental.expert_end_game='relay'"),
+    ],
+)
 def test_an_old_run_that_used_a_removed_option_says_so_in_one_line(change, expected):
     old = OmegaConf.merge(OmegaConf.create(OLD_RUN_CONFIG), change)
     with pytest.raises(ValueError) as raised:
@@ -245,9 +269,20 @@ def test_resuming_an_old_run_that_used_a_removed_option_fails_in_one_line_before
 
 
 def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(tmp_path):
-    tiny = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-            "algo.buffer_size=2000", "trainer.checkpoint_every=20", "trainer.eval_every=0", "trainer.eval_episodes=1",
-            "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
+    tiny = [
+        "obs=internal",
+        "demos=none",
+        "task.max_steps=20",
+        "algo.learning_starts=20",
+        "algo.batch_size=16",
+        "algo.buffer_size=2000",
+        "trainer.checkpoint_every=20",
+        "trainer.eval_every=0",
+        "trainer.eval_episodes=1",
+        "trainer.final_eval_episodes=1",
+        "trainer.video=false",
+        "trainer.progress_bar=false",
+    ]
     run = tmp_path / "run"
     first = _train([*tiny, "trainer.total_timesteps=20", f"hydra.run.dir={run}"], tmp_path)
     assert first.returncode == 0, first.stderr[-2000:]

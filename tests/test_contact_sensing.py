@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from cathsim_dmc.control.policies import make_policy
 from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.suite.gym import CathSimEnv
-from cathsim_dmc.control.policies import make_policy
 
 INTO_THE_ARCH = 45  # expert steps after which the BCA type I wire (seed 0) touches the wall
 

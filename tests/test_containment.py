@@ -5,11 +5,11 @@ import types
 import numpy as np
 import pytest
 import trimesh
+from shipped import aorta_params
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import containment, signed_distance
 from cathsim_dmc.anatomy.validate import open_end_plane
-from shipped import aorta_params
 
 
 @pytest.mark.parametrize("aorta", aorta_params())

@@ -23,17 +23,30 @@ def test_every_relative_link_resolves(check_links):
 def test_the_checker_finds_a_missing_file_and_a_missing_heading(check_links, tmp_path):
     (tmp_path / "other.md").write_text("# A heading\n\n## `Code` and more, too\n")
     page = tmp_path / "page.md"
-    page.write_text("[ok](other.md) [ok](other.md#a-heading) [ok](other.md#code-and-more-too) [ok](#top)\n"
-                    "# Top\n"
-                    "![gone](missing.png) [gone](other.md#no-such-heading) `[code](ignored.md)`\n"
-                    "```\n[fenced](ignored.md)\n```\n")
+    page.write_text(
+        "[ok](other.md) [ok](other.md#a-heading) [ok](other.md#code-and-more-too) [ok](#top)\n"
+        "# Top\n"
+        "![gone](missing.png) [gone](other.md#no-such-heading) `[code](ignored.md)`\n"
+        "```\n[fenced](ignored.md)\n```\n"
+    )
     problems = check_links.broken_links(page)
     assert len(problems) == 2, problems
     assert "missing.png" in problems[0] and "no-such-heading" in problems[1]
 
 
-DOCS_PAGES = {"install", "environment", "model", "anatomy", "observations", "training", "imitation", "benchmarks",
-              "cli", "architecture", "paper"}
+DOCS_PAGES = {
+    "install",
+    "environment",
+    "model",
+    "anatomy",
+    "observations",
+    "training",
+    "imitation",
+    "benchmarks",
+    "cli",
+    "architecture",
+    "paper",
+}
 USER_DOCS_MAX_LINES = 2100  # README plus docs/*.md: about 2,050 with the paper's tables
 
 

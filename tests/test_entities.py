@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from dm_control import composer, mjcf
+from dm_control import composer
 
 import cathsim_dmc  # noqa: F401  (selects the GL backend before dm_control renders)
-from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
+from cathsim_dmc.sim.arena import OperatingArena
 
 
 def _compile_alone(entity):
@@ -119,9 +119,15 @@ def test_robot_pose_features_are_bounded_and_do_not_wrap():
     observation = env.step(np.zeros(2)).observation
     insertion, rotation = env.physics.bind(robot.joints).qpos
     assert rotation > 2 * np.pi and insertion == pytest.approx(0.15, abs=1e-3)
-    np.testing.assert_allclose(observation["follower/pose_features"],
-                               [insertion / robot.stroke_m, np.sin(rotation), np.cos(rotation)], atol=1e-9)
+    np.testing.assert_allclose(
+        observation["follower/pose_features"],
+        [insertion / robot.stroke_m, np.sin(rotation), np.cos(rotation)],
+        atol=1e-9,
+    )
     rates = env.physics.bind(robot.joints).qvel
-    np.testing.assert_allclose(observation["follower/rate_features"],
-                               rates / [robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s], atol=1e-9)
+    np.testing.assert_allclose(
+        observation["follower/rate_features"],
+        rates / [robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s],
+        atol=1e-9,
+    )
     assert observation["follower/drive_force"].shape == (1,)

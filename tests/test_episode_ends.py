@@ -5,9 +5,16 @@ import pytest
 
 from cathsim_dmc.anatomy.asset import load_asset
 from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc.evaluation.episode_ends import (BESIDE_TARGET, OFF_CENTERLINES, PAST_TARGET, REACHED, SHORT_OF_TARGET,
-                                      episode_ends, failures_table)
 from cathsim_dmc.core.shipped import resolve_asset
+from cathsim_dmc.evaluation.episode_ends import (
+    BESIDE_TARGET,
+    OFF_CENTERLINES,
+    PAST_TARGET,
+    REACHED,
+    SHORT_OF_TARGET,
+    episode_ends,
+    failures_table,
+)
 
 
 @pytest.fixture(scope="module")
@@ -28,12 +35,22 @@ def _arrays(tree, target, paths, successes=None):
     episode = np.concatenate([np.full(len(p), e) for e, p in enumerate(paths)])
     tips = np.vstack(paths)
     distance = np.linalg.norm(tips - target_m, axis=1)
-    success = distance <= 0.004 if successes is None else np.concatenate(
-        [np.full(len(p), s) for p, s in zip(paths, successes)])
-    return {"task": np.str_(target), "aorta": np.str_("type1"), "episode": episode,
-            "step": np.concatenate([np.arange(1, len(p) + 1) for p in paths]), "tip_position_m": tips,
-            "target_distance_m": distance, "success": success, "contact_force_n": np.linspace(0, 1, len(tips)),
-            "start_tip_position_m": np.array([p[0] for p in paths])}
+    success = (
+        distance <= 0.004
+        if successes is None
+        else np.concatenate([np.full(len(p), s) for p, s in zip(paths, successes)])
+    )
+    return {
+        "task": np.str_(target),
+        "aorta": np.str_("type1"),
+        "episode": episode,
+        "step": np.concatenate([np.arange(1, len(p) + 1) for p in paths]),
+        "tip_position_m": tips,
+        "target_distance_m": distance,
+        "success": success,
+        "contact_force_n": np.linspace(0, 1, len(tips)),
+        "start_tip_position_m": np.array([p[0] for p in paths]),
+    }
 
 
 def _across(line, s_m, distance_m):
@@ -64,8 +81,10 @@ def test_each_way_of_failing_is_told_apart(tree):
     junction_step = tree.junction_arclength_m("lsa", "bca") / 0.002
     assert junction_step < step < lsa.length_m / 0.002
     assert into_lsa.end_along_vessel_mm == pytest.approx(
-        1e3 * ((lsa.length_m - tree.junction_arclength_m("lsa", "bca"))
-               + (end - tree.junction_arclength_m("bca", "lsa"))), abs=2)
+        1e3
+        * ((lsa.length_m - tree.junction_arclength_m("lsa", "bca")) + (end - tree.junction_arclength_m("bca", "lsa"))),
+        abs=2,
+    )
     assert ends[1].end_along_vessel_mm == pytest.approx(12, abs=0.5)
     assert 4.9 < ends[2].closest_to_target_mm < 5.1 and ends[2].end_along_vessel_mm < 1
     assert ends[3].end_along_vessel_mm == pytest.approx(1e3 * (end - 0.08), abs=0.5)

@@ -6,8 +6,8 @@ import pytest
 
 import cathsim_dmc  # noqa: F401  (selects the GL backend)
 from cathsim_dmc.control.expert import CenterlineExpert
-from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.core.shipped import available_aortas
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 @pytest.fixture(scope="module")
@@ -58,8 +58,14 @@ def test_the_steady_expert_turns_only_in_the_arch_and_its_first_turn_follows_the
 
     first_turns = []
     for offset in (-0.2, 0.0, 0.2):
-        env = CathSimEnv(task="lcca", aorta="type1", obs="internal", start_rotation_rad=np.pi + offset,
-                         start_rotation_jitter_rad=0.0, start_insertion_jitter_m=0.0)
+        env = CathSimEnv(
+            task="lcca",
+            aorta="type1",
+            obs="internal",
+            start_rotation_rad=np.pi + offset,
+            start_rotation_jitter_rad=0.0,
+            start_insertion_jitter_m=0.0,
+        )
         expert = make_policy("expert_steady")
         observation, info = env.reset(seed=0)
         actions = []
@@ -115,7 +121,9 @@ def test_expert_reaches_every_target_of_every_aorta(environments, aorta, target,
         observation, reward, terminated, truncated, info = env.step(expert(observation, env))
         if terminated or truncated:
             break
-    assert terminated and info["success"], (f"step {info['step']}: {1000 * info['target_distance_m']:.1f} mm "
-                                            f"from the target, diverged={info['diverged']}, escaped={info['escaped']}")
+    assert terminated and info["success"], (
+        f"step {info['step']}: {1000 * info['target_distance_m']:.1f} mm "
+        f"from the target, diverged={info['diverged']}, escaped={info['escaped']}"
+    )
     assert info["target_distance_m"] <= 0.004 and reward == pytest.approx(10.0)
     assert start_m > 0.1  # from the descending aorta, not a start near the target

@@ -6,17 +6,17 @@ import sys
 import mujoco
 import numpy as np
 import pytest
-
-from cathsim_dmc.sim import geom_groups
+from shipped import aorta_params
 
 from cathsim_dmc import tasks
+from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.sim.export import START_KEY, export_scene
-from shipped import aorta_params
 
 
 # The export does not depend on the anatomy: type I runs by default, the other aortas with -m slow.
-@pytest.mark.parametrize("aorta", [p if p.values[0] == "type1" else pytest.param(*p.values, marks=pytest.mark.slow)
-                                   for p in aorta_params()])
+@pytest.mark.parametrize(
+    "aorta", [p if p.values[0] == "type1" else pytest.param(*p.values, marks=pytest.mark.slow) for p in aorta_params()]
+)
 def test_exported_scene_reloads_and_steps(aorta, tmp_path):
     env = tasks.load("bca", aorta, seed=0)
     env.reset()
@@ -26,16 +26,28 @@ def test_exported_scene_reloads_and_steps(aorta, tmp_path):
 
     assert np.array_equal(np.bincount(model.geom_group, minlength=5), np.bincount(original.geom_group, minlength=5))
     assert (model.geom_group == geom_groups.WIRE).sum() > 0
-    wall = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, mujoco.mj_id2name(original, mujoco.mjtObj.mjOBJ_GEOM, i))
-            for i in env.task.aorta.wall_geom_ids(env.physics)]
+    wall = [
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, mujoco.mj_id2name(original, mujoco.mjtObj.mjOBJ_GEOM, i))
+        for i in env.task.aorta.wall_geom_ids(env.physics)
+    ]
     assert len(wall) == env.task.aorta.asset.hull_count and min(wall) >= 0
     assert env.task.aorta.visual_geom_id(env.physics) >= 0
     # A wall piece's STL holds its hull, so a point inside the hull is dropped; the hull stays.
     assert (model.nq, model.nu, model.nmeshface) == (original.nq, original.nu, original.nmeshface)
     np.testing.assert_allclose(model.geom_pos, original.geom_pos, atol=1e-8)
     np.testing.assert_allclose(model.geom_rbound, original.geom_rbound, atol=1e-8)
-    for field in ("body_mass", "body_inertia", "jnt_stiffness", "dof_armature", "dof_damping", "geom_friction",
-                  "geom_solref", "geom_solimp", "actuator_gainprm", "qpos0"):
+    for field in (
+        "body_mass",
+        "body_inertia",
+        "jnt_stiffness",
+        "dof_armature",
+        "dof_damping",
+        "geom_friction",
+        "geom_solref",
+        "geom_solimp",
+        "actuator_gainprm",
+        "qpos0",
+    ):
         np.testing.assert_array_equal(getattr(model, field), getattr(original, field), err_msg=field)
     assert (model.opt.timestep, model.opt.integrator) == (original.opt.timestep, original.opt.integrator)
 
@@ -61,14 +73,20 @@ def test_the_distance_field_wall_exports_as_prisms(tmp_path):
     assert scenes["fast_field"].read_text() == scenes["fast"].read_text()
     files = sorted(p.name for p in (tmp_path / "fast_field" / "meshes").iterdir())
     assert files == sorted(p.name for p in (tmp_path / "fast" / "meshes").iterdir())
-    assert all((tmp_path / "fast_field" / "meshes" / f).read_bytes() == (tmp_path / "fast" / "meshes" / f).read_bytes()
-               for f in files)
+    assert all(
+        (tmp_path / "fast_field" / "meshes" / f).read_bytes() == (tmp_path / "fast" / "meshes" / f).read_bytes()
+        for f in files
+    )
 
 
 def test_cli_writes_the_scene_and_refuses_to_overwrite(tmp_path):
     out = tmp_path / "scene"
-    run = lambda *extra: subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.export", "task=lcca", "aorta=type1",
-                                         f"out={out}", *extra], capture_output=True, text=True, cwd=tmp_path)
+    run = lambda *extra: subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.export", "task=lcca", "aorta=type1", f"out={out}", *extra],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
     first = run()
     assert first.returncode == 0, first.stderr
     assert (out / "scene.xml").is_file() and any((out / "meshes").glob("*.stl"))

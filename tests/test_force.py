@@ -19,7 +19,7 @@ def _synthetic(episodes=24, steps=10, seed=0):
     sides = rng.integers(4, 41, size=n)
     corners = rng.integers(0, 80 - sides + 1, size=(2, n))
     for i, (side, y, x) in enumerate(zip(sides, *corners)):
-        images[i, 0, y:y + side, x:x + side] = 255
+        images[i, 0, y : y + side, x : x + side] = 255
     force = (2.0 * (sides / 40.0) ** 2).astype(np.float32)
     return images, force, np.repeat(np.arange(episodes), steps)
 
@@ -36,8 +36,9 @@ def test_nested_subsets_grow_by_whole_episodes():
 def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
     torch.set_num_threads(1)
     images, force, episodes = _synthetic()
-    cfg = ForceConfig(sizes=(40, 190), epochs=1, min_updates=250, batch_size=16, test_fraction=0.2,
-                      val_fraction=0.1, seed=0)
+    cfg = ForceConfig(
+        sizes=(40, 190), epochs=1, min_updates=250, batch_size=16, test_fraction=0.2, val_fraction=0.1, seed=0
+    )
     report = train_force_sizes(images, force, episodes, cfg, out_dir=tmp_path)
     small, large = report["sizes"]
     assert report["test_episodes"] == 5 and large["train_samples"] == 190
@@ -64,8 +65,9 @@ def test_test_outliers_are_also_scored_apart():
     kept = np.delete(force[test_rows], 0)
     assert only["without_outliers"]["train_mean"]["mse_n2"] < only["train_mean"]["mse_n2"] / 100
     train_mean = force[np.setdiff1d(np.arange(len(force)), test_rows)].mean()
-    assert only["without_outliers"]["train_mean"]["mse_n2"] == pytest.approx(np.mean((kept - train_mean) ** 2),
-                                                                             rel=1e-5)
+    assert only["without_outliers"]["train_mean"]["mse_n2"] == pytest.approx(
+        np.mean((kept - train_mean) ** 2), rel=1e-5
+    )
     assert "Without the 1 test sample(s) above 10 N" in markdown(report)
     # No outlier: one table only.
     report = train_force_sizes(images, np.minimum(force, 5.0), episodes, cfg)
@@ -84,17 +86,36 @@ def test_z_head_is_trained_when_z_is_given():
 
 
 def _force(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.force", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.force", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_cli_reports_mse_per_size(tmp_path):
     from cathsim_dmc.learning.collect import collect
 
-    collect(tmp_path / "data", "lcca", "type1", "forward", episodes=3, episodes_per_shard=2, seed=0,
-            task_options={"max_steps": 8}, show_progress=False)
-    result = _force([f"data={tmp_path}/data", "force.sizes=[8,1000]", "force.epochs=1", "force.min_updates=2",
-                     "progress_bar=false", f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    collect(
+        tmp_path / "data",
+        "lcca",
+        "type1",
+        "forward",
+        episodes=3,
+        episodes_per_shard=2,
+        seed=0,
+        task_options={"max_steps": 8},
+        show_progress=False,
+    )
+    result = _force(
+        [
+            f"data={tmp_path}/data",
+            "force.sizes=[8,1000]",
+            "force.epochs=1",
+            "force.min_updates=2",
+            "progress_bar=false",
+            f"hydra.run.dir={tmp_path}/run",
+        ],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     report = json.loads((tmp_path / "run" / "force.json").read_text())
     assert [r["train_samples"] for r in report["sizes"]] == [8, 16] and report["test_samples"] == 8
@@ -103,24 +124,31 @@ def test_cli_reports_mse_per_size(tmp_path):
     assert "(all there is; 1,000 asked)" in (tmp_path / "run" / "force.md").read_text()
 
 
-@pytest.mark.parametrize("args, expected", [
-    ([], "data="),
-    (["data=/no/such/dataset"], "/no/such/dataset"),
-    (["data={empty}"], "holds no dataset"),
-    (["data={data}"], "not a readable"),
-    (["data={data}", "image_key=depth"], "pixels"),
-    (["data={data}", "force.sizes=[0]"], "force.sizes"),
-    (["data={data}", "label=peak_force"], "mean_contact_force_n"),
-    (["data={old}"], "label=mean_contact_force_n is not in the data"),
-])
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        ([], "data="),
+        (["data=/no/such/dataset"], "/no/such/dataset"),
+        (["data={empty}"], "holds no dataset"),
+        (["data={data}"], "not a readable"),
+        (["data={data}", "image_key=depth"], "pixels"),
+        (["data={data}", "force.sizes=[0]"], "force.sizes"),
+        (["data={data}", "label=peak_force"], "mean_contact_force_n"),
+        (["data={old}"], "label=mean_contact_force_n is not in the data"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, expected):
     (tmp_path / "empty").mkdir()
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "trajectories.npz").write_bytes(b"")
     # A trajectory file from before the step-mean force was recorded.
     (tmp_path / "old").mkdir()
-    np.savez(tmp_path / "old" / "trajectories.npz", episode=np.zeros(3, np.int32), contact_force_n=np.zeros(3),
-             obs_pixels=np.zeros((3, 1, 80, 80), np.uint8))
+    np.savez(
+        tmp_path / "old" / "trajectories.npz",
+        episode=np.zeros(3, np.int32),
+        contact_force_n=np.zeros(3),
+        obs_pixels=np.zeros((3, 1, 80, 80), np.uint8),
+    )
     args = [a.format(empty=tmp_path / "empty", data=tmp_path / "data", old=tmp_path / "old") for a in args]
     result = _force([*args, f"hydra.run.dir={tmp_path}/bad"], tmp_path)
     assert result.returncode == 2, result.stderr[-2000:]

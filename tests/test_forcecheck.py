@@ -18,8 +18,13 @@ def _trajectory(path, forces, step_mean=True):
     recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="synthetic")
     recorder.start_episode(np.zeros(3), 0.1)
     for step, force in enumerate(forces, 1):
-        info = {"step": step, "tip_position_m": np.zeros(3), "contact_force_n": 0.0 if step_mean else force,
-                "target_distance_m": 0.1, "success": False}
+        info = {
+            "step": step,
+            "tip_position_m": np.zeros(3),
+            "contact_force_n": 0.0 if step_mean else force,
+            "target_distance_m": 0.1,
+            "success": False,
+        }
         if step_mean:
             info["mean_contact_force_n"] = force
         recorder.record(np.zeros(2), 0.0, info, False, False)
@@ -59,13 +64,23 @@ def test_csv_reference_by_column_name(simulated, tmp_path):
 
 
 def _cli(tmp_path, *args):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.forcecheck", *map(str, args)],
-                          capture_output=True, text=True, cwd=tmp_path)
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.forcecheck", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
 
 
 def test_cli_takes_hydra_overrides_and_writes_the_report(simulated, tmp_path):
-    run = _cli(tmp_path, f"trajectories=[{simulated},{simulated}]", "mean_n=0.5", "std_n=0.2", "contact_only=true",
-               f"out={tmp_path / 'out'}")
+    run = _cli(
+        tmp_path,
+        f"trajectories=[{simulated},{simulated}]",
+        "mean_n=0.5",
+        "std_n=0.2",
+        "contact_only=true",
+        f"out={tmp_path / 'out'}",
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     result = json.loads((tmp_path / "out" / RESULT_JSON).read_text())
     assert result["contact_only"] and len(result["trajectories"]) == 2
@@ -73,8 +88,19 @@ def test_cli_takes_hydra_overrides_and_writes_the_report(simulated, tmp_path):
     assert (tmp_path / "out" / CDF_PLOT).is_file() and "Mann-Whitney" in run.stdout
 
 
-@pytest.mark.parametrize("case", ["missing_file", "empty_trajectory", "empty_csv", "no_reference", "bad_std",
-                                  "no_trajectories", "mean_not_a_number", "unknown_column"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing_file",
+        "empty_trajectory",
+        "empty_csv",
+        "no_reference",
+        "bad_std",
+        "no_trajectories",
+        "mean_not_a_number",
+        "unknown_column",
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(case, simulated, tmp_path):
     empty_csv = tmp_path / "empty.csv"
     empty_csv.write_text("force_n\n")

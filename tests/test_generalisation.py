@@ -8,8 +8,12 @@ from conftest import load_script
 def _write(folder, successes, aortas, force=0.2, length=100):
     folder.mkdir(parents=True)
     rate = 100.0 * sum(successes) / len(successes)
-    summary = {"success_pct": {"mean": rate}, "spl_pct": {"mean": rate / 2}, "force_n": {"mean": force},
-               "episode_length": {"mean": length}}
+    summary = {
+        "success_pct": {"mean": rate},
+        "spl_pct": {"mean": rate / 2},
+        "force_n": {"mean": force},
+        "episode_length": {"mean": length},
+    }
     episodes = [{"episode": i, "success": s, "aorta": a} for i, (s, a) in enumerate(zip(successes, aortas))]
     (folder / "metrics.json").write_text(json.dumps({"summary": summary, "episodes": episodes}))
 
@@ -30,8 +34,8 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_p
     heldout, shipped_table = text.split("Success % on the shipped aortas")
     rows = {line.split(" | ")[0].strip("| "): line for line in heldout.splitlines() if line.startswith("| ")}
     best = rows["navigator, best.zip"].split(" | ")
-    assert best[1] == "3"                            # seeds
-    assert best[2] == "75 (75, 50, 100)"             # median success, then each seed's
+    assert best[1] == "3"  # seeds
+    assert best[2] == "75 (75, 50, 100)"  # median success, then each seed's
     assert best[6:10] == ["100 (100, 100, 100)", "100 (100, 100, 100)", "50 (50, 0, 100)", "50 |"]  # with noise: seed 0
     assert rows["navigator, last.zip"].split(" | ")[2] == "0"
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there

@@ -82,8 +82,15 @@ def test_seeded_reset_replays_identically():
 def test_info_and_truncation():
     env = gymnasium.make("cathsim_dmc/bca-type1-v0", max_steps=3)
     _, info = env.reset(seed=0)
-    assert {"tip_position_m", "target_distance_m", "contact_force_n", "mean_contact_force_n", "success",
-            "diverged", "escaped"} <= set(info)
+    assert {
+        "tip_position_m",
+        "target_distance_m",
+        "contact_force_n",
+        "mean_contact_force_n",
+        "success",
+        "diverged",
+        "escaped",
+    } <= set(info)
     done = False
     while not done:
         _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
@@ -98,11 +105,13 @@ def test_invalid_actions_raise_before_physics_and_the_env_stays_usable():
         env.step(np.zeros(2))
     env.reset(seed=0)
     physics = env.physics
-    for bad, match in [([np.nan, 0.0], r"action=\[nan, 0\.0\] is not finite"),
-                       (np.array([0.0, -np.inf], np.float32), r"action=\[ 0\., -inf\] is not finite"),
-                       ([1.0], r"action=\[1\.0\] has shape \(1,\); expected shape \(2,\)"),
-                       (np.zeros((1, 2)), r"has shape \(1, 2\)"),
-                       ("ab", r"action='ab' is not numeric")]:
+    for bad, match in [
+        ([np.nan, 0.0], r"action=\[nan, 0\.0\] is not finite"),
+        (np.array([0.0, -np.inf], np.float32), r"action=\[ 0\., -inf\] is not finite"),
+        ([1.0], r"action=\[1\.0\] has shape \(1,\); expected shape \(2,\)"),
+        (np.zeros((1, 2)), r"has shape \(1, 2\)"),
+        ("ab", r"action='ab' is not numeric"),
+    ]:
         time_s, qpos = physics.data.time, physics.data.qpos.copy()
         with pytest.raises(ValueError, match=match) as error:
             env.step(bad)
@@ -111,8 +120,9 @@ def test_invalid_actions_raise_before_physics_and_the_env_stays_usable():
     # Out of range is clipped, as documented.
     _, _, terminated, truncated, _ = env.step(np.array([3.0, -2.0], np.float32))
     robot = env.task.robot
-    np.testing.assert_allclose(physics.bind(robot.actuators).ctrl,
-                               [robot.max_insertion_speed_m_s, -robot.max_rotation_speed_rad_s])
+    np.testing.assert_allclose(
+        physics.bind(robot.actuators).ctrl, [robot.max_insertion_speed_m_s, -robot.max_rotation_speed_rad_s]
+    )
     assert not (terminated or truncated)
     _, _, terminated, truncated, _ = env.step(np.zeros(2))
     assert truncated
@@ -124,9 +134,21 @@ def test_invalid_actions_raise_before_physics_and_the_env_stays_usable():
 
 
 # SAC as the recipe builds it (a small network: nothing is trained here).
-ALGO = dict(learning_rate=3e-4, buffer_size=400, learning_starts=1000, batch_size=8, tau=0.005, gamma=0.99,
-            train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
-            net_arch=[16], share_features_extractor=False)
+ALGO = dict(
+    learning_rate=3e-4,
+    buffer_size=400,
+    learning_starts=1000,
+    batch_size=8,
+    tau=0.005,
+    gamma=0.99,
+    train_freq=1,
+    gradient_steps=1,
+    target_update_interval=1,
+    target_entropy=-2.0,
+    ent_coef="auto_1.0",
+    net_arch=[16],
+    share_features_extractor=False,
+)
 
 
 def _stored_episode(max_steps, seed=0, diverge_at=None):
@@ -190,12 +212,14 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
     samples = buffer._get_samples(np.arange(steps))
     assert not samples.dones.any()
     assert samples.rewards[-1, 0] < 0  # dense: minus the remaining distance
-    np.testing.assert_array_equal(buffer.next_observations["joint_pos"][steps - 1, 0],
-                                  info["terminal_observation"]["joint_pos"])
+    np.testing.assert_array_equal(
+        buffer.next_observations["joint_pos"][steps - 1, 0], info["terminal_observation"]["joint_pos"]
+    )
     # The demonstration's state at that step (the episodes drift apart by an ulp's worth, see
     # above: 0.017 rad at most in the wire's joints), far from the next episode's start.
-    np.testing.assert_allclose(buffer.next_observations["joint_pos"][steps - 1, 0],
-                               demos.next_observations["joint_pos"][steps - 1], atol=0.05)
+    np.testing.assert_allclose(
+        buffer.next_observations["joint_pos"][steps - 1, 0], demos.next_observations["joint_pos"][steps - 1], atol=0.05
+    )
 
     # A divergence truncates: reward 0, a timeout, bootstrapped.
     buffer, steps, info = _stored_episode(max_steps=300, diverge_at=3)
@@ -207,8 +231,7 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
     from cathsim_dmc.learning.rl.demos import DemoReplayBuffer, add_transitions
 
     env = CathSimEnv("lcca", "type1", obs="internal", max_steps=5)
-    buffer = DemoReplayBuffer(10, env.observation_space, env.action_space, device="cpu",
-                              demo_capacity=reach + 5)
+    buffer = DemoReplayBuffer(10, env.observation_space, env.action_space, device="cpu", demo_capacity=reach + 5)
     add_transitions(buffer, demos)
     assert buffer.demos._get_samples(np.arange(reach)).dones[:, 0].tolist() == [0.0] * (reach - 1) + [1.0]
     # ... and its time limit is not.

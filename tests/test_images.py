@@ -6,9 +6,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from cathsim_dmc.sim import raster
-
 from cathsim_dmc import tasks
+from cathsim_dmc.sim import raster
 from cathsim_dmc.sim.arena import top_camera_matrix
 from cathsim_dmc.sim.render import TopView
 
@@ -24,8 +23,10 @@ def bent():
     for i in range(60):
         env.step(np.array([1.0, 0.6 if i < 30 else -0.6]))
     task = env.task
-    views = {r: TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
-             for r in ("gl", "raster")}
+    views = {
+        r: TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
+        for r in ("gl", "raster")
+    }
     return env, views
 
 
@@ -108,8 +109,11 @@ def test_fluoro_roadmap_thickness_and_dark_wire(bent):
 def test_seeded_episode_images_are_reproducible():
     env = tasks.load("bca", "type1", obs="enn", style="fluoro", noise_std=4.0, seed=0)
     task = env.task
-    others = {(r, s): TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
-              for r in ("gl", "raster") for s in ("camera", "fluoro")}
+    others = {
+        (r, s): TopView(SIZE, renderer=r, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
+        for r in ("gl", "raster")
+        for s in ("camera", "fluoro")
+    }
 
     def episode():
         env.random_state.seed(7)
@@ -141,8 +145,8 @@ def test_bad_image_option_names_the_choices(option):
 
 
 def test_an_observation_preset_is_one_yaml_file_read_by_the_api(tmp_path):
-    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, load_presets
     from cathsim_dmc.core.shipped import conf_root
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, load_presets
 
     # The shipped files are what the API uses.
     assert load_presets(conf_root() / "obs") == OBSERVATION_PRESETS

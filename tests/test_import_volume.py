@@ -12,18 +12,17 @@ import pytest
 import trimesh
 
 from cathsim_dmc.anatomy import load_asset
+from cathsim_dmc.anatomy.corpus import VARIANTS, cap_files, make_variant
 from cathsim_dmc.anatomy.crop import crop_to_paths, smooth_around
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.sdf import SDFGrid
 from cathsim_dmc.anatomy.surface_cleanup import folded_faces, repair_folds
+from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 from cathsim_dmc.control.expert import CenterlineExpert
 from cathsim_dmc.suite.gym import CathSimEnv
-from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
-
-from cathsim_dmc.anatomy.corpus import VARIANTS, cap_files, make_variant
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-R = 0.010                      # sphere radius (m)
+R = 0.010  # sphere radius (m)
 
 
 def sphere_grid(radius=R, spacing=0.0005, pad=0.004) -> SDFGrid:
@@ -44,8 +43,8 @@ def test_zero_surface_of_a_sphere_is_closed_oriented_and_accurate():
     v, f = zero_surface(g.values, g.origin, g.spacing)
     mesh = trimesh.Trimesh(v, f, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent
-    assert mesh.volume > 0                                  # outward
-    assert abs(mesh.volume / (4 / 3 * np.pi * R ** 3) - 1) < 0.02
+    assert mesh.volume > 0  # outward
+    assert abs(mesh.volume / (4 / 3 * np.pi * R**3) - 1) < 0.02
     assert np.abs(np.linalg.norm(v, axis=1) - R).max() < 0.05e-3
 
 
@@ -57,8 +56,9 @@ def test_volume_grid_closes_small_gaps_and_ignores_fins():
     # A fin: a third triangle on one edge (non-manifold), pointing out of the sphere.
     v = np.vstack([v, 1.3 * v[f[5, 0]]])
     f = np.vstack([f, [[f[5, 0], f[5, 1], len(v) - 1]]])
-    grid, notes = volume_sdf_grid(v, f, 0.0005, 0.004, np.zeros(3), {"bca": np.array([0.0, 0.005, 0.0])},
-                                  max_gap_m=0.003)
+    grid, notes = volume_sdf_grid(
+        v, f, 0.0005, 0.004, np.zeros(3), {"bca": np.array([0.0, 0.005, 0.0])}, max_gap_m=0.003
+    )
     assert any("closed gaps" in n for n in notes), notes
     # Near the surface the grid is the sphere's signed distance to within a node.
     rng = np.random.default_rng(0)
@@ -70,7 +70,7 @@ def test_volume_grid_closes_small_gaps_and_ignores_fins():
 
 def test_volume_grid_refuses_an_open_surface_and_a_site_in_another_piece():
     v, f = sphere_mesh()
-    open_v, open_f = v, f[~np.all(v[f].mean(axis=1) > 0, axis=1)]   # an octant gone: not a flat end
+    open_v, open_f = v, f[~np.all(v[f].mean(axis=1) > 0, axis=1)]  # an octant gone: not a flat end
     with pytest.raises(VolumeError, match=r"the surface is open: the outside reaches entry=\[0.0, 0.0, 0.0\] mm"):
         volume_sdf_grid(open_v, open_f, 0.0005, 0.004, np.zeros(3), {"bca": np.array([0.0, 0.0, -0.005])})
     two_v = np.vstack([v, v + [0.03, 0, 0]])
@@ -83,7 +83,7 @@ def test_a_wall_shell_gives_its_inner_surface():
     v, f = sphere_mesh()
     outer_v, outer_f = sphere_mesh(R + 0.002)
     shell_v = np.vstack([outer_v, v])
-    shell_f = np.vstack([outer_f, f[:, ::-1] + len(outer_v)])      # the inner surface faces the lumen
+    shell_f = np.vstack([outer_f, f[:, ::-1] + len(outer_v)])  # the inner surface faces the lumen
     grid, notes = volume_sdf_grid(shell_v, shell_f, 0.0005, 0.004, np.zeros(3), {"bca": np.array([0, 0.005, 0])})
     assert any("second surface" in n and "wall shell" in n for n in notes), notes
     on_axis = np.array([[R - 0.001, 0, 0], [R + 0.001, 0, 0]])
@@ -139,15 +139,23 @@ def _import(tmp_path, name, *options):
     """Import corpus variant `name` with `cathsim-aorta import` and default options (plus `options`);
     (exit status, stdout, stderr)."""
     path, entry, sites = make_variant(name, tmp_path)
-    vec = lambda p: "[" + ",".join(f"{x:.4f}" for x in p) + "]"   # noqa: E731
+    vec = lambda p: "[" + ",".join(f"{x:.4f}" for x in p) + "]"  # noqa: E731
     script = pathlib.Path(sys.executable).with_name("cathsim-aorta")
     caps = cap_files(path)
-    cmd = [str(script), "import", f"mesh={path}", f"entry={vec(entry)}", f"out={tmp_path / name}",
-           *[f"sites.{k}={vec(p)}" for k, p in sorted(sites.items()) if k in ("bca", "lcca")], *options]
+    cmd = [
+        str(script),
+        "import",
+        f"mesh={path}",
+        f"entry={vec(entry)}",
+        f"out={tmp_path / name}",
+        *[f"sites.{k}={vec(p)}" for k, p in sorted(sites.items()) if k in ("bca", "lcca")],
+        *options,
+    ]
     if caps:
         cmd.append("caps=[" + ",".join(str(c) for c in caps) + "]")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=ROOT,
-                          env=dict(os.environ, OMP_NUM_THREADS="1"))
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=900, cwd=ROOT, env=dict(os.environ, OMP_NUM_THREADS="1")
+    )
     print(proc.stdout, proc.stderr)
     return proc.returncode, proc.stdout, proc.stderr
 
@@ -162,7 +170,7 @@ def _check_import(tmp_path, name):
     the scripted expert reaches both targets in at least 4 of 5 episodes. Returns stdout."""
     status, out, err = _import(tmp_path, name)
     assert status == 0, err
-    assert err == ""                                         # no stray warnings
+    assert err == ""  # no stray warnings
     asset = load_asset(tmp_path / name)
     # The import ends with the validation of what it wrote (validate_and_compile): its line.
     checked = [line for line in out.splitlines() if line.startswith(f"type1_{name}: OK; ")]
@@ -172,13 +180,14 @@ def _check_import(tmp_path, name):
     src = load_asset(ROOT / "assets" / "type1")
     length = lambda a, k: np.linalg.norm(np.diff(a.centerlines[k].points, axis=0), axis=1).sum()  # noqa: E731
     from cathsim_dmc.anatomy.sdf import signed_distance
+
     lumen = (asset.visual_vertices.astype(float), asset.visual_faces)
     for k in ("bca", "lcca"):
         assert abs(length(asset, k) / length(src, k) - 1) < 0.01, k
         points, radius = src.centerlines[k].points[::4], src.centerlines[k].radius[::4]
-        away = np.linalg.norm(points - points[0], axis=1) > 0.015     # the open end cuts the lumen behind the entry
+        away = np.linalg.norm(points - points[0], axis=1) > 0.015  # the open end cuts the lumen behind the entry
         points, radius = points[away], radius[away]
-        depth = signed_distance(*lumen, points)           # positive inside
+        depth = signed_distance(*lumen, points)  # positive inside
         assert np.all(depth > MIN_DEPTH_SHARE.get(name, 0.8) * radius), (k, float(np.min(depth / radius)))
     for target in ("bca", "lcca"):
         env = CathSimEnv(task=target, aorta=str(tmp_path / name), obs="internal")
@@ -203,10 +212,17 @@ def test_a_pinched_segmentation_imports_in_one_command(tmp_path):
     assert "non-manifold surface" in out and "rebuilding it from a voxel volume" in out
 
 
-EXPECTED_NOTE = {"noisy": "rebuilding the lumen from a voxel volume", "decimated": "non-manifold surface",
-                 "stump": "trimmed 1 side branch", "wall_shell": "second surface around the lumen",
-                 "jagged_cap": "cropped", "cfd_caps": "5 cap surfaces added", "cfd_open": "capped 5 flat open vessel ends",
-                 "staircase": "a terraced surface", "self_intersecting": "rebuilding"}
+EXPECTED_NOTE = {
+    "noisy": "rebuilding the lumen from a voxel volume",
+    "decimated": "non-manifold surface",
+    "stump": "trimmed 1 side branch",
+    "wall_shell": "second surface around the lumen",
+    "jagged_cap": "cropped",
+    "cfd_caps": "5 cap surfaces added",
+    "cfd_open": "capped 5 flat open vessel ends",
+    "staircase": "a terraced surface",
+    "self_intersecting": "rebuilding",
+}
 
 
 @pytest.mark.slow
@@ -240,10 +256,10 @@ def _tee_grid(spacing=0.0005):
 
 def test_the_crop_keeps_the_margin_around_the_paths_and_caps_the_rest():
     grid = _tee_grid()
-    path = [np.array([[0.0, -0.035 + 0.005 * i, 0.0] for i in range(15)])]     # entry y = -35 mm, site y = +35 mm
+    path = [np.array([[0.0, -0.035 + 0.005 * i, 0.0] for i in range(15)])]  # entry y = -35 mm, site y = +35 mm
     cropped, notes = crop_to_paths(grid, path, path[0][0], 0.010)
     assert len(notes) == 1 and notes[0].startswith("cropped 2 regions more than 10 mm"), notes
-    inside = lambda g, p: g(np.array([p], dtype=float))[0] < 0   # noqa: E731
+    inside = lambda g, p: g(np.array([p], dtype=float))[0] < 0  # noqa: E731
     # Kept: the tube along the path, 5 mm past the site, and the side tube's first 10 mm beyond the main tube.
     for p in ([0, 0.040, 0], [0.012, 0, 0], [0, -0.030, 0.004]):
         assert inside(cropped, p), p
@@ -254,7 +270,11 @@ def test_the_crop_keeps_the_margin_around_the_paths_and_caps_the_rest():
     wall = np.array([[0.0058, y, 0.0] for y in np.linspace(-0.03, 0.03, 7)])
     np.testing.assert_allclose(cropped(wall), grid(wall), atol=1e-9)
     # A path through everything crops nothing.
-    everything = [path[0], np.array([[0.0, 0.0, 0.0], [0.039, 0.0, 0.0]]), np.array([[0.0, 0.0, 0.0], [0.0, 0.069, 0.0]])]
+    everything = [
+        path[0],
+        np.array([[0.0, 0.0, 0.0], [0.039, 0.0, 0.0]]),
+        np.array([[0.0, 0.0, 0.0], [0.0, 0.069, 0.0]]),
+    ]
     assert crop_to_paths(grid, everything, path[0][0], 0.010)[1] == []
 
 
@@ -264,5 +284,5 @@ def test_smoothing_around_a_point_leaves_the_rest_of_the_volume_alone():
     smoothed = smooth_around(grid, where, 0.008, 0.002)
     far = np.array([[0.0058, 0.04, 0.0], [0.0, -0.03, 0.0058]])
     np.testing.assert_array_equal(smoothed(far), grid(far))
-    corner = np.array([[0.0045, 0.0042, 0.0]])          # the sharp edge where the side tube meets the main one
+    corner = np.array([[0.0045, 0.0042, 0.0]])  # the sharp edge where the side tube meets the main one
     assert smoothed(corner)[0] != grid(corner)[0]

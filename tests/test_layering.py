@@ -80,8 +80,13 @@ def test_the_graph_sees_deferred_imports():
 
 def test_no_module_outside_cli_imports_cli():
     graph = import_graph()
-    offenders = [(m, i) for m, imported in graph.items() if not m.startswith(f"{PACKAGE}.cli")
-                 for i in imported if i.startswith(f"{PACKAGE}.cli")]
+    offenders = [
+        (m, i)
+        for m, imported in graph.items()
+        if not m.startswith(f"{PACKAGE}.cli")
+        for i in imported
+        if i.startswith(f"{PACKAGE}.cli")
+    ]
     assert offenders == []
 
 
@@ -92,9 +97,11 @@ def test_no_import_circles():
 @pytest.mark.parametrize("module", ["cathsim_dmc.anatomy", "cathsim_dmc.anatomy.validate"])
 def test_anatomy_imports_without_dm_control_or_mujoco(module):
     # A fresh interpreter: this test process has loaded everything already.
-    code = (f"import sys, {module}; "
-            "loaded = [m for m in ('dm_control', 'mujoco') if m in sys.modules]; "
-            "assert not loaded, loaded")
+    code = (
+        f"import sys, {module}; "
+        "loaded = [m for m in ('dm_control', 'mujoco') if m in sys.modules]; "
+        "assert not loaded, loaded"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
 
@@ -117,9 +124,17 @@ def test_anatomy_never_imports_dm_control_or_mujoco():
 
 # What an entity may not import: the image observables and their renderers, and every
 # layer built on entities (tasks, the Gymnasium adapter, learning, the command line).
-ENTITY_FORBIDDEN = ("cathsim_dmc.sim.render", "cathsim_dmc.sim.raster", "cathsim_dmc.sim.gl_backend", "cathsim_dmc.tasks",
-                    "cathsim_dmc.suite.gym", "cathsim_dmc.learning.rl", "cathsim_dmc.learning.supervised", "cathsim_dmc.learning.agents",
-                    "cathsim_dmc.app.cli")
+ENTITY_FORBIDDEN = (
+    "cathsim_dmc.sim.render",
+    "cathsim_dmc.sim.raster",
+    "cathsim_dmc.sim.gl_backend",
+    "cathsim_dmc.tasks",
+    "cathsim_dmc.suite.gym",
+    "cathsim_dmc.learning.rl",
+    "cathsim_dmc.learning.supervised",
+    "cathsim_dmc.learning.agents",
+    "cathsim_dmc.app.cli",
+)
 
 
 def _imported_names(path: Path) -> list:
@@ -135,9 +150,12 @@ def _imported_names(path: Path) -> list:
 
 def test_entities_never_import_the_renderer_or_the_layers_above():
     # Not even deferred into a function: an entity is built and simulated without images.
-    offenders = [(path.name, name) for path in sorted((ROOT / PACKAGE / "entities").rglob("*.py"))
-                 for name in _imported_names(path)
-                 if any(name == f or name.startswith(f + ".") for f in ENTITY_FORBIDDEN)]
+    offenders = [
+        (path.name, name)
+        for path in sorted((ROOT / PACKAGE / "entities").rglob("*.py"))
+        for name in _imported_names(path)
+        if any(name == f or name.startswith(f + ".") for f in ENTITY_FORBIDDEN)
+    ]
     assert offenders == []
 
 
@@ -151,31 +169,48 @@ def test_importing_entities_loads_no_renderer():
     # A fresh interpreter: this test process has loaded everything already. The package's
     # own __init__ picks the GL backend (cathsim_dmc.sim.gl_backend, a few lines of os and ctypes)
     # before dm_control is imported, so only the modules that render are checked here.
-    code = ("import sys, cathsim_dmc.entities; "
-            "loaded = [m for m in ('cathsim_dmc.sim.render', 'cathsim_dmc.sim.raster', 'cathsim_dmc.tasks') "
-            "if m in sys.modules]; "
-            "assert not loaded, loaded")
+    code = (
+        "import sys, cathsim_dmc.entities; "
+        "loaded = [m for m in ('cathsim_dmc.sim.render', 'cathsim_dmc.sim.raster', 'cathsim_dmc.tasks') "
+        "if m in sys.modules]; "
+        "assert not loaded, loaded"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
 
 
 # What the task layer may not import: the layers that drive a task (the Gymnasium adapter,
 # policies and experts, learning, evaluation, the command line).
-TASK_FORBIDDEN = ("cathsim_dmc.suite.gym", "cathsim_dmc.learning.rl", "cathsim_dmc.learning.supervised", "cathsim_dmc.control.policies",
-                  "cathsim_dmc.control.expert", "cathsim_dmc.evaluation.rollouts", "cathsim_dmc.evaluation.fidelity", "cathsim_dmc.app.cli")
+TASK_FORBIDDEN = (
+    "cathsim_dmc.suite.gym",
+    "cathsim_dmc.learning.rl",
+    "cathsim_dmc.learning.supervised",
+    "cathsim_dmc.control.policies",
+    "cathsim_dmc.control.expert",
+    "cathsim_dmc.evaluation.rollouts",
+    "cathsim_dmc.evaluation.fidelity",
+    "cathsim_dmc.app.cli",
+)
 
 
 def test_tasks_never_import_the_layers_that_drive_them():
-    offenders = [(path.name, name) for path in sorted((ROOT / "tasks").rglob("*.py"))
-                 for name in _imported_names(path)
-                 if any(name == f or name.startswith(f + ".") for f in TASK_FORBIDDEN)]
+    offenders = [
+        (path.name, name)
+        for path in sorted((ROOT / "tasks").rglob("*.py"))
+        for name in _imported_names(path)
+        if any(name == f or name.startswith(f + ".") for f in TASK_FORBIDDEN)
+    ]
     assert offenders == []
 
 
 def test_physics_and_fidelity_never_import_the_gymnasium_adapter():
     # fidelity measures the model through the composer environment (cathsim_dmc.tasks).
-    offenders = [(name, imported) for name in ("physics.py", "fidelity.py", "arena.py")
-                 for imported in _imported_names(ROOT / PACKAGE / name) if imported.startswith("cathsim_dmc.suite.gym")]
+    offenders = [
+        (name, imported)
+        for name in ("physics.py", "fidelity.py", "arena.py")
+        for imported in _imported_names(ROOT / PACKAGE / name)
+        if imported.startswith("cathsim_dmc.suite.gym")
+    ]
     assert offenders == []
 
 

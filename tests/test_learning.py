@@ -22,8 +22,14 @@ def env():
 def _add(buffer_add, env, n, reward):
     obs = {k: np.zeros((1,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
     for _ in range(n):
-        buffer_add(obs, obs, np.zeros((1, 2), np.float32), np.array([reward], np.float32), np.array([False]),
-                   [{"TimeLimit.truncated": False}])
+        buffer_add(
+            obs,
+            obs,
+            np.zeros((1, 2), np.float32),
+            np.array([reward], np.float32),
+            np.array([False]),
+            [{"TimeLimit.truncated": False}],
+        )
 
 
 def test_every_batch_takes_the_demo_share_from_the_demonstrations(env):
@@ -94,8 +100,14 @@ def test_cloning_batches_draw_from_demonstrations_and_labels_by_their_sizes(env)
     buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu", label_capacity=1000)
     obs = {k: np.zeros((1,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
     for _ in range(100):  # demonstrations act [1, 1]
-        buffer.demos.add(obs, obs, np.ones((1, 2), np.float32), np.zeros(1, np.float32), np.array([False]),
-                         [{"TimeLimit.truncated": False}])
+        buffer.demos.add(
+            obs,
+            obs,
+            np.ones((1, 2), np.float32),
+            np.zeros(1, np.float32),
+            np.array([False]),
+            [{"TimeLimit.truncated": False}],
+        )
     _, actions = buffer.cloning_batch(64)
     assert float(actions.min()) == 1.0  # no labels yet: all from the demonstrations
     stacked = {k: np.zeros((300,) + s.shape, s.dtype) for k, s in env.observation_space.spaces.items()}
@@ -114,8 +126,14 @@ def test_best_checkpoint_keeps_the_highest_success_then_return(env, tmp_path):
     from cathsim_dmc.learning.rl.checkpoints import best_record, keep_if_best
 
     model = SAC("MultiInputPolicy", env, buffer_size=100, learning_starts=10, device="cpu")
-    sequence = [(1000, 0.2, -5.0, True), (2000, 0.1, 3.0, False), (3000, 0.2, -6.0, False),
-                (4000, 0.2, -4.0, True), (5000, 0.6, -9.0, True), (6000, 0.6, -9.0, False)]
+    sequence = [
+        (1000, 0.2, -5.0, True),
+        (2000, 0.1, 3.0, False),
+        (3000, 0.2, -6.0, False),
+        (4000, 0.2, -4.0, True),
+        (5000, 0.6, -9.0, True),
+        (6000, 0.6, -9.0, False),
+    ]
     for step, success, ret, expected in sequence:
         assert keep_if_best(model, tmp_path, step, success, ret) is expected
     assert best_record(tmp_path) == {"step": 5000, "success_rate": 0.6, "mean_return": -9.0}
@@ -126,12 +144,28 @@ def test_eval_at_start_scores_the_pre_trained_policy_before_the_first_step(tmp_p
     from cathsim_dmc.learning.rl import train as training
 
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
-    trainer = dict(total_timesteps=20, eval_every=10, eval_episodes=1, eval_at_start=True, checkpoint_every=0,
-                   progress_bar=False, video=False)
+    trainer = dict(
+        total_timesteps=20,
+        eval_every=10,
+        eval_episodes=1,
+        eval_at_start=True,
+        checkpoint_every=0,
+        progress_bar=False,
+        video=False,
+    )
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
     try:
-        training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1",
-                       make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5))
+        training.train(
+            env,
+            tmp_path,
+            algo,
+            trainer,
+            0,
+            "internal",
+            "bca",
+            "type1",
+            make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5),
+        )
     finally:
         env.close()
     records = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
@@ -151,8 +185,15 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         cfg = compose("train", overrides=["obs=internal", "demos=none"])
     algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16, net_arch=[32, 32])
-    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=60, eval_every=20,
-                   eval_episodes=2, checkpoint_every=0, progress_bar=False, video=False)
+    trainer = dict(
+        OmegaConf.to_container(cfg.trainer, resolve=True),
+        total_timesteps=60,
+        eval_every=20,
+        eval_episodes=2,
+        checkpoint_every=0,
+        progress_bar=False,
+        video=False,
+    )
     seeds = []
 
     class SeedLog(CathSimEnv):
@@ -162,8 +203,17 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
 
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
     try:
-        training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1",
-                       make_eval_env=lambda: SeedLog("bca", "type1", obs="internal", max_steps=5))
+        training.train(
+            env,
+            tmp_path,
+            algo,
+            trainer,
+            0,
+            "internal",
+            "bca",
+            "type1",
+            make_eval_env=lambda: SeedLog("bca", "type1", obs="internal", max_steps=5),
+        )
     finally:
         env.close()
     assert seeds == [20_000, 20_001] * 3
@@ -171,21 +221,45 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
     assert [(r["step"], r["episodes"]) for r in records] == [(20, 2), (40, 2), (60, 2)]
     top = max(records, key=lambda r: (r["success_rate"], r["mean_return"]))  # max keeps the first of equals
     best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
-    assert best == {"step": top["step"], "success_rate": top["success_rate"], "mean_return": top["mean_return"],
-                    "episodes": 2}
+    assert best == {
+        "step": top["step"],
+        "success_rate": top["success_rate"],
+        "mean_return": top["mean_return"],
+        "episodes": 2,
+    }
 
 
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
     from cathsim_dmc.learning.agents import load_checkpoint_policy
 
     run = tmp_path / "run"
-    args = ["obs=internal", "reward=progress", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-            "algo.buffer_size=2000", "trainer.total_timesteps=40", "trainer.checkpoint_every=20",
-            "trainer.eval_every=20", "trainer.eval_episodes=1", "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false",
-            "experimental.normalize_observations=true", "demos.episodes=1", "demos.pretrain_actor_steps=5",
-            "demos.critic_warmup_steps=5", f"hydra.run.dir={run}"]
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], cwd=tmp_path,
-                            capture_output=True, text=True, timeout=900)
+    args = [
+        "obs=internal",
+        "reward=progress",
+        "task.max_steps=20",
+        "algo.learning_starts=20",
+        "algo.batch_size=16",
+        "algo.buffer_size=2000",
+        "trainer.total_timesteps=40",
+        "trainer.checkpoint_every=20",
+        "trainer.eval_every=20",
+        "trainer.eval_episodes=1",
+        "trainer.final_eval_episodes=1",
+        "trainer.video=false",
+        "trainer.progress_bar=false",
+        "experimental.normalize_observations=true",
+        "demos.episodes=1",
+        "demos.pretrain_actor_steps=5",
+        "demos.critic_warmup_steps=5",
+        f"hydra.run.dir={run}",
+    ]
+    result = subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.train", *args],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     checkpoints = run / "checkpoints"
     for name in ("last", "step_20", "step_40", "best"):
@@ -209,9 +283,20 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
 
     # Resuming continues the saved statistics (and the run's clock in evaluations.jsonl).
     count_before = stats.count
-    again = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", f"resume={run}",
-                            "trainer.total_timesteps=60", f"hydra.run.dir={tmp_path}/resume"],
-                           cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    again = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cathsim_dmc.app.cli.train",
+            f"resume={run}",
+            "trainer.total_timesteps=60",
+            f"hydra.run.dir={tmp_path}/resume",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert again.returncode == 0, again.stderr[-2000:]
     resumed = load_checkpoint_policy(checkpoints / "last.zip").normalizer.obs_rms["joint_pos"]
     assert resumed.count > count_before + 15
@@ -222,8 +307,7 @@ def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_
     from cathsim_dmc.learning.collect import collect
     from cathsim_dmc.learning.rl.demos import dataset_transitions, expert_transitions
 
-    collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7,
-            show_progress=False)
+    collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7, show_progress=False)
     from_data = dataset_transitions(tmp_path / "data", env.task, env.observation_space)
     live = expert_transitions(env, episodes=2, seed=7)
     assert from_data.episodes == 2 and len(from_data) == len(live)
@@ -241,8 +325,7 @@ def test_demonstrations_beyond_the_capacity_are_refused(env):
     from cathsim_dmc.learning.rl.demos import DemoReplayBuffer, add_transitions, expert_transitions
 
     demos = expert_transitions(env, episodes=1, seed=0)
-    buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu",
-                              demo_capacity=len(demos) - 1)
+    buffer = DemoReplayBuffer(100, env.observation_space, env.action_space, device="cpu", demo_capacity=len(demos) - 1)
     with pytest.raises(ValueError, match="demos.capacity"):
         add_transitions(buffer, demos)
 
@@ -257,13 +340,27 @@ def test_behavioural_cloning_term_pulls_the_deterministic_action_towards_the_exp
     from cathsim_dmc.learning.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
-    algo = dict(learning_rate=3e-4, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
-                net_arch=[64, 64], share_features_extractor=False, critic_layer_norm=True)
+    algo = dict(
+        learning_rate=3e-4,
+        buffer_size=500,
+        learning_starts=0,
+        batch_size=64,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=1,
+        target_entropy=-2.0,
+        ent_coef="auto_0.05",
+        net_arch=[64, 64],
+        share_features_extractor=False,
+        critic_layer_norm=True,
+    )
     errors = {}
     for weight in (0.0, 2.0):
-        model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None,
-                          dict(share=0.5, capacity=1000, bc_weight=weight))
+        model = build_sac(
+            DummyVecEnv([lambda: env]), algo, 0, "cpu", None, dict(share=0.5, capacity=1000, bc_weight=weight)
+        )
         add_transitions(model.replay_buffer, demos)
         model._setup_learn(1)  # SB3 sets up its logger here; train() records to it
         warm_up_critic(model, 300, batch_size=64)  # as in the recipe
@@ -283,14 +380,28 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.learning.rl.demos import add_transitions, expert_transitions
     from cathsim_dmc.learning.rl.checkpoints import keep_if_best
+    from cathsim_dmc.learning.rl.demos import add_transitions, expert_transitions
     from cathsim_dmc.learning.rl.train import build_sac
 
     demos = expert_transitions(env, episodes=1, seed=0)
-    algo = dict(learning_rate=1e-3, buffer_size=500, learning_starts=0, batch_size=64, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_0.05",
-                net_arch=[64, 64], share_features_extractor=False, critic_layer_norm=True, actor_average_tau=0.1)
+    algo = dict(
+        learning_rate=1e-3,
+        buffer_size=500,
+        learning_starts=0,
+        batch_size=64,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=1,
+        target_entropy=-2.0,
+        ent_coef="auto_0.05",
+        net_arch=[64, 64],
+        share_features_extractor=False,
+        critic_layer_norm=True,
+        actor_average_tau=0.1,
+    )
     model = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None, dict(share=0.5, capacity=1000))
     add_transitions(model.replay_buffer, demos)
     model._setup_learn(1)
@@ -320,7 +431,8 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
 
     write_policy_file(tmp_path, "internal", "bca", "type1")
     step_file = save_checkpoint(model, tmp_path / "checkpoints", replay_buffer=False).with_name(
-        f"step_{model.num_timesteps}.zip")
+        f"step_{model.num_timesteps}.zip"
+    )
     raw = SAC.load(step_file, device="cpu")
     torch.testing.assert_close(torch.cat([p.detach().flatten() for p in raw.actor.parameters()]), trained)
     played = load_checkpoint_policy(step_file).model
@@ -333,8 +445,13 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
 
     from cathsim_dmc.learning.agents import load_checkpoint_policy
     from cathsim_dmc.learning.rl.callbacks import break_best_tie
-    from cathsim_dmc.learning.rl.checkpoints import (append_evaluation, best_record, keep_if_best, save_model,
-                                            write_policy_file)
+    from cathsim_dmc.learning.rl.checkpoints import (
+        append_evaluation,
+        best_record,
+        keep_if_best,
+        save_model,
+        write_policy_file,
+    )
 
     write_policy_file(tmp_path, "internal", "bca", "type1")
     folder = tmp_path / "checkpoints"
@@ -347,8 +464,13 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
         append_evaluation(tmp_path, {"step": step, "success_rate": success, "mean_return": ret, "wall_s": 0.0})
     assert best_record(tmp_path)["step"] == 0
 
-    record = break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15),
-                            periodic_episodes=10, extra_episodes=2, seed=20_000)
+    record = break_best_tie(
+        tmp_path,
+        lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15),
+        periodic_episodes=10,
+        extra_episodes=2,
+        seed=20_000,
+    )
     scores = record["tie_break"]["scores"]
     assert [s["step"] for s in scores] == [0, 2000]  # 1000 played once, as step 0; 3000 not tied
     assert all(s["episodes"] == 12 for s in scores)
@@ -363,19 +485,30 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
     from cathsim_dmc.learning.rl.callbacks import has_unbroken_tie
 
     assert not has_unbroken_tie(tmp_path)
-    assert break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15), 10, 2,
-                          20_000) is None
+    assert (
+        break_best_tie(tmp_path, lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15), 10, 2, 20_000)
+        is None
+    )
 
 
-@pytest.mark.parametrize("overrides, episodes, capacity, takeover_rounds, expert", [
-    ([], 100, 20_000, 0, "expert"),
-    (["task=lcca"], 300, 40_000, 3, "expert"),  # the LCCA's own budget (conf/demos_for_task)
-    (["task=lcca", "demos=none"], 0, 20_000, 0, "expert"),  # no demonstrations means none, whatever the target
-    (["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"], 50, 40_000, 0, "expert"),  # the command line wins
-    (["obs=enn"], 100, 20_000, 3, "expert"),  # and the preset: the ENN's takeover rounds (conf/demos_for_obs)
-    (["task=lcca", "obs=enn"], 300, 40_000, 3, "expert"),
-    (["obs=enn", "demos.takeover_rounds=0", "demos.expert=expert_steady"], 100, 20_000, 0, "expert_steady"),
-])
+@pytest.mark.parametrize(
+    "overrides, episodes, capacity, takeover_rounds, expert",
+    [
+        ([], 100, 20_000, 0, "expert"),
+        (["task=lcca"], 300, 40_000, 3, "expert"),  # the LCCA's own budget (conf/demos_for_task)
+        (["task=lcca", "demos=none"], 0, 20_000, 0, "expert"),  # no demonstrations means none, whatever the target
+        (
+            ["task=lcca", "demos.episodes=50", "demos.takeover_rounds=0"],
+            50,
+            40_000,
+            0,
+            "expert",
+        ),  # the command line wins
+        (["obs=enn"], 100, 20_000, 3, "expert"),  # and the preset: the ENN's takeover rounds (conf/demos_for_obs)
+        (["task=lcca", "obs=enn"], 300, 40_000, 3, "expert"),
+        (["obs=enn", "demos.takeover_rounds=0", "demos.expert=expert_steady"], 100, 20_000, 0, "expert_steady"),
+    ],
+)
 def test_the_demonstrations_follow_the_target_and_the_preset(overrides, episodes, capacity, takeover_rounds, expert):
     from hydra import compose, initialize_config_dir
 
@@ -383,8 +516,12 @@ def test_the_demonstrations_follow_the_target_and_the_preset(overrides, episodes
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         demos = compose(config_name="train", overrides=overrides).demos
-    assert (demos.episodes, demos.capacity, demos.takeover_rounds, demos.expert) == (episodes, capacity,
-                                                                                    takeover_rounds, expert)
+    assert (demos.episodes, demos.capacity, demos.takeover_rounds, demos.expert) == (
+        episodes,
+        capacity,
+        takeover_rounds,
+        expert,
+    )
 
 
 def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
@@ -405,20 +542,38 @@ def test_a_shorter_budget_is_the_start_of_a_longer_run(tmp_path):
     algo = dict(OmegaConf.to_container(cfg.algo, resolve=True), learning_starts=10, batch_size=16, net_arch=[32, 32])
     runs = {}
     for total in (40, 80):
-        trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True), total_timesteps=total, eval_every=20,
-                       eval_episodes=2, checkpoint_every=40, progress_bar=False, video=False)
+        trainer = dict(
+            OmegaConf.to_container(cfg.trainer, resolve=True),
+            total_timesteps=total,
+            eval_every=20,
+            eval_episodes=2,
+            checkpoint_every=40,
+            progress_bar=False,
+            video=False,
+        )
         env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 5})
         try:
-            training.train(env, tmp_path / str(total), algo, trainer, 0, "internal", "bca", "type1",
-                           make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5))
+            training.train(
+                env,
+                tmp_path / str(total),
+                algo,
+                trainer,
+                0,
+                "internal",
+                "bca",
+                "type1",
+                make_eval_env=lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=5),
+            )
         finally:
             env.close()
         records = [json.loads(line) for line in (tmp_path / str(total) / "evaluations.jsonl").read_text().splitlines()]
         runs[total] = [{k: v for k, v in r.items() if k != "wall_s"} for r in records]  # all but the clock
     assert [r["step"] for r in runs[80]] == [20, 40, 60, 80]
     assert runs[40] == runs[80][:2]
-    weights = {total: SACfD.load(tmp_path / str(total) / "checkpoints" / "step_40.zip").policy.state_dict()
-               for total in (40, 80)}
+    weights = {
+        total: SACfD.load(tmp_path / str(total) / "checkpoints" / "step_40.zip").policy.state_dict()
+        for total in (40, 80)
+    }
     assert weights[40].keys() == weights[80].keys()
     assert all(torch.equal(weights[40][k], weights[80][k]) for k in weights[40])
 
@@ -446,8 +601,20 @@ def test_dagger_rounds_add_labels_that_a_resumed_run_reads_back(tmp_path):
         make = lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=12)  # noqa: E731
         trainer = dict(total_timesteps=total, eval_every=0, progress_bar=False, video=False, checkpoint_every=0)
         try:
-            training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1", resume=resume,
-                           demos=demos, make_demo_env=make, callbacks=[Count()])
+            training.train(
+                env,
+                tmp_path,
+                algo,
+                trainer,
+                0,
+                "internal",
+                "bca",
+                "type1",
+                resume=resume,
+                demos=demos,
+                make_demo_env=make,
+                callbacks=[Count()],
+            )
         finally:
             env.close()
 
@@ -470,15 +637,24 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
 
     assert set(DEMONSTRATORS) <= set(BUILTIN_POLICIES)  # every name the schema accepts can be built
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
-    demos = dict(episodes=2, expert="expert_steady", pretrain_actor_steps=5, takeover_rounds=1,
-                 takeover_episodes=1, takeover_max_student_steps=5, dagger_rounds=1, dagger_episodes=1,
-                 bc_weight=0.5)
+    demos = dict(
+        episodes=2,
+        expert="expert_steady",
+        pretrain_actor_steps=5,
+        takeover_rounds=1,
+        takeover_episodes=1,
+        takeover_max_student_steps=5,
+        dagger_rounds=1,
+        dagger_episodes=1,
+        bc_weight=0.5,
+    )
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 15})
     make = lambda: CathSimEnv("bca", "type1", obs="internal", max_steps=15)  # noqa: E731
     trainer = dict(total_timesteps=12, eval_every=0, progress_bar=False, video=False, checkpoint_every=0)
     try:
-        result = training.train(env, tmp_path, algo, trainer, 0, "internal", "bca", "type1", demos=demos,
-                                make_demo_env=make)
+        result = training.train(
+            env, tmp_path, algo, trainer, 0, "internal", "bca", "type1", demos=demos, make_demo_env=make
+        )
     finally:
         env.close()
     buffer = result.model.replay_buffer

@@ -20,8 +20,7 @@ def test_every_variant_composes_with_the_training_config(learning_results):
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
         for variant, (_, budget) in learning_results.VARIANTS.items():
             for task in learning_results.TASKS:
-                overrides = learning_results.new_run_overrides(variant, task, 1, 1000, budget,
-                                                               save_replay_buffer=True)
+                overrides = learning_results.new_run_overrides(variant, task, 1, 1000, budget, save_replay_buffer=True)
                 cfg = compose("train", overrides=overrides)
                 assert [cfg.task.target, cfg.aorta.name] == task.split("-")
                 assert cfg.trainer.total_timesteps == budget and cfg.seed == 1
@@ -37,9 +36,11 @@ def test_every_variant_composes_with_the_training_config(learning_results):
 def test_report_reads_runs_and_an_empty_root(learning_results, tmp_path):
     folder = learning_results.run_dir(tmp_path, "demos_internal", "bca-type1", 0)
     (folder / "eval").mkdir(parents=True)
-    evaluations = [{"step": 1000, "success_rate": 0.5, "wall_s": 60},
-                   {"step": 2000, "success_rate": 0.9, "wall_s": 180},
-                   {"step": 3000, "success_rate": 1.0, "wall_s": 300}]
+    evaluations = [
+        {"step": 1000, "success_rate": 0.5, "wall_s": 60},
+        {"step": 2000, "success_rate": 0.9, "wall_s": 180},
+        {"step": 3000, "success_rate": 1.0, "wall_s": 300},
+    ]
     (folder / "evaluations.jsonl").write_text("".join(json.dumps(e) + "\n" for e in evaluations))
     (folder / "eval" / "metrics.json").write_text(json.dumps({"summary": {"success_pct": {"mean": 96.0}}}))
     out = tmp_path / "table.md"

@@ -89,15 +89,20 @@ def test_force_and_safety_use_the_step_mean():
 
 def test_trajectory_dataset_round_trip(tmp_path):
     """Recorder -> npz -> dataset: images scaled to [0, 1], held-out split by whole episodes."""
-    from cathsim_dmc.learning.datasets import TrajectoryDataset, split_by_episode
     from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
+    from cathsim_dmc.learning.datasets import TrajectoryDataset, split_by_episode
 
     recorder = TrajectoryRecorder("bca", "type1", np.zeros(3), policy="test", record_observations=True)
     for episode in range(4):
         recorder.start_episode(np.zeros(3), 0.1)
         for step in range(1, 4):
-            info = {"step": step, "tip_position_m": np.zeros(3), "contact_force_n": float(step),
-                    "target_distance_m": 0.1, "success": False}
+            info = {
+                "step": step,
+                "tip_position_m": np.zeros(3),
+                "contact_force_n": float(step),
+                "target_distance_m": 0.1,
+                "success": False,
+            }
             image = np.full((1, 8, 8), 51 * episode, dtype=np.uint8)
             recorder.record(np.array([0.5, -0.5]), -0.1, info, False, step == 3, {"pixels": image})
     path = recorder.save(tmp_path / "trajectories.npz")

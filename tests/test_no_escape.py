@@ -11,8 +11,8 @@ import pytest
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy.containment import Containment
-from cathsim_dmc.core.shipped import available_aortas
 from cathsim_dmc.control.policies import AdversarialPolicy
+from cathsim_dmc.core.shipped import available_aortas
 
 
 class EscapeMonitor:

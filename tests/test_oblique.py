@@ -9,8 +9,15 @@ import pathlib
 import numpy as np
 import pytest
 
-from cathsim_dmc.anatomy import (ARCH_OBLIQUITY_DEG, PRESETS, build_arch, load_asset, ostia_obliquity_deg,
-                                 params_hash, sample_arch_params)
+from cathsim_dmc.anatomy import (
+    ARCH_OBLIQUITY_DEG,
+    PRESETS,
+    build_arch,
+    load_asset,
+    ostia_obliquity_deg,
+    params_hash,
+    sample_arch_params,
+)
 from cathsim_dmc.sim.arena import lao_camera_axes
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -51,8 +58,9 @@ def test_rotation_keeps_the_entry_and_brings_the_ascending_aorta_anterior():
     np.testing.assert_array_equal(turned.aorta.radius, flat.aorta.radius)
     for b in ("bca", "lcca", "lsa"):
         np.testing.assert_allclose(turned.sites[b], _turned(flat.sites[b], 30.0, a, -hd), atol=1e-12)
-        np.testing.assert_allclose(turned.branches[b].points, _turned(flat.branches[b].points, 30.0, a, -hd),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            turned.branches[b].points, _turned(flat.branches[b].points, 30.0, a, -hd), atol=1e-12
+        )
     assert turned.tortuosity() == pytest.approx(flat.tortuosity())
     # Negative turns it the other way: the ascending aorta posterior.
     assert build_arch(base.replace(arch_rotation_deg=-20.0)).aorta.points[-1][2] < root_flat[2] - 0.015
@@ -110,8 +118,9 @@ def test_shipped_oblique_arch_is_its_plain_arch_turned(name):
         pts, _ = asset.centerlines[b]
         ref, _ = plain.centerlines[b]
         np.testing.assert_allclose(pts, _turned(ref, 33.5, p.arch_width_m / 2, -p.arch_depth_m / 2), atol=2e-6)
-        np.testing.assert_allclose(asset.sites[b], _turned(plain.sites[b], 33.5, p.arch_width_m / 2,
-                                                           -p.arch_depth_m / 2), atol=2e-6)
+        np.testing.assert_allclose(
+            asset.sites[b], _turned(plain.sites[b], 33.5, p.arch_width_m / 2, -p.arch_depth_m / 2), atol=2e-6
+        )
     # The ascending aorta now lies well anterior: the lumen reaches further forward.
     assert asset.visual_vertices[:, 2].max() > plain.visual_vertices[:, 2].max() + 0.02
 
@@ -197,8 +206,10 @@ def test_lao_mask_is_where_the_wire_projects(renderer):
     cam = physics.model.name2id("top", "camera")
     right, up, _ = lao_camera_axes(lao)
     scale = SIZE / physics.model.cam_fovy[cam]
-    points = np.concatenate([physics.bind(task.guidewire.segments).xpos,
-                             [task.tip_position_m(physics)]]) - physics.data.cam_xpos[cam]
+    points = (
+        np.concatenate([physics.bind(task.guidewire.segments).xpos, [task.tip_position_m(physics)]])
+        - physics.data.cam_xpos[cam]
+    )
     u, v = SIZE / 2 + scale * points @ right, SIZE / 2 - scale * points @ up
     inside = (u >= 0) & (u < SIZE) & (v >= 0) & (v < SIZE)
     assert inside.sum() > 10
@@ -212,8 +223,7 @@ def test_lao_mask_is_where_the_wire_projects(renderer):
     pixels = np.argwhere(mask) + 0.5
     line = np.stack([v, u], axis=1)
     start, step = line[:-1], np.diff(line, axis=0)
-    t = np.clip(((pixels[:, None] - start[None]) * step[None]).sum(-1) / np.maximum((step ** 2).sum(-1), 1e-12),
-                0, 1)
+    t = np.clip(((pixels[:, None] - start[None]) * step[None]).sum(-1) / np.maximum((step**2).sum(-1), 1e-12), 0, 1)
     gaps = np.linalg.norm(pixels[:, None] - (start[None] + t[..., None] * step[None]), axis=2).min(axis=1)
     assert gaps.max() <= 1.5
     # The AP view of the same state puts the wire elsewhere: the view really turned.

@@ -20,8 +20,13 @@ def paper(repo_root):
 
 
 def _script(repo_root, *args, **kwargs):
-    return subprocess.run([sys.executable, str(repo_root / "scripts" / "paper_tables.py"), *args],
-                          capture_output=True, text=True, timeout=600, **kwargs)
+    return subprocess.run(
+        [sys.executable, str(repo_root / "scripts" / "paper_tables.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        **kwargs,
+    )
 
 
 def _overrides(command):
@@ -71,22 +76,30 @@ def test_cells_wait_for_what_they_need(paper, tmp_path):
             assert names.index(need) < names.index(cell.name), (cell.name, need)
     assert paper.state(plan, plan.by_name("imitation/bc/enn_bca")) == "waiting"
     force = plan.by_name("force")
-    assert sorted(force.needs) == sorted(f"imitation/data/{d}_{t}" for d in ("expert", "expert_more")
-                                         for t in paper.TARGETS)
+    assert sorted(force.needs) == sorted(
+        f"imitation/data/{d}_{t}" for d in ("expert", "expert_more") for t in paper.TARGETS
+    )
 
 
 def _record(path, cells):
     """A record as another machine left it: the cells' numbers, none of their files."""
-    path.write_text(json.dumps({name: {"info": {"cell": name, "seconds": 60.0}, **extra}
-                                for name, extra in cells.items()}))
+    path.write_text(
+        json.dumps({name: {"info": {"cell": name, "seconds": 60.0}, **extra} for name, extra in cells.items()})
+    )
 
 
 def test_a_cell_whose_input_finished_on_another_machine_runs_that_input_again_first(paper, tmp_path, capsys):
     plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
     summary = lambda success, spl: {"summary": {"success_pct": {"mean": success}, "spl_pct": {"mean": spl}}}  # noqa: E731
-    _record(plan.record, {"imitation/data/expert_bca": {},
-                          "main/enn/bca/seed0": summary(98, 90), "main/enn/bca/seed1": summary(100, 80),
-                          "main/enn/bca/seed2": summary(100, 70)})
+    _record(
+        plan.record,
+        {
+            "imitation/data/expert_bca": {},
+            "main/enn/bca/seed0": summary(98, 90),
+            "main/enn/bca/seed1": summary(100, 80),
+            "main/enn/bca/seed2": summary(100, 70),
+        },
+    )
     student, data = plan.by_name("imitation/bc/expert_bca"), plan.by_name("imitation/data/expert_bca")
     assert paper.state(plan, data) == "recorded" and plan.done(data)
     taken = set()
@@ -136,8 +149,10 @@ def test_an_unfinished_protocol_cell_is_running_only_while_its_lock_is_held(pape
     plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
     folder = tmp_path / "protocol/internal/lcca/seed0"
     folder.mkdir(parents=True)
-    (folder / "evaluations.jsonl").write_text(json.dumps({"step": 10, "success_rate": 0.0, "mean_return": -40.0,
-                                                          "mean_episode_length": 300.0}) + "\n")
+    (folder / "evaluations.jsonl").write_text(
+        json.dumps({"step": 10, "success_rate": 0.0, "mean_return": -40.0, "mean_episode_length": 300.0}) + "\n"
+    )
+
     def row():
         return next(line for line in paper.protocol_table(plan).splitlines() if "| Internal | LCCA |" in line)
 
@@ -175,10 +190,12 @@ def test_bad_input_is_one_line_and_exit_2(repo_root, tmp_path):
     root = tmp_path / "root"
     root.mkdir()
     (root / "plan.json").write_text(json.dumps({"budget": "tiny"}))
-    for args, expected in ((["run", "--budget", "full"], "--budget tiny"),
-                           (["run", "--only", "mian/enn"], "mian/enn"),
-                           (["run", "--jobs", "0"], "--jobs 0"),
-                           (["run", "--deadline", "25:00"], "--deadline 25:00")):
+    for args, expected in (
+        (["run", "--budget", "full"], "--budget tiny"),
+        (["run", "--only", "mian/enn"], "mian/enn"),
+        (["run", "--jobs", "0"], "--jobs 0"),
+        (["run", "--deadline", "25:00"], "--deadline 25:00"),
+    ):
         result = _script(repo_root, "--root", str(root), *args)
         assert result.returncode == 2, result.stderr
         lines = result.stderr.strip().splitlines()
@@ -197,8 +214,17 @@ def _wait_for(path, process, timeout_s=300):
 def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(paper, repo_root, tmp_path):
     cell = "main/internal/bca/seed0"
     folder = tmp_path / cell
-    run = [sys.executable, str(repo_root / "scripts" / "paper_tables.py"), "--root", str(tmp_path), "run",
-           "--budget", "tiny", "--only", cell]
+    run = [
+        sys.executable,
+        str(repo_root / "scripts" / "paper_tables.py"),
+        "--root",
+        str(tmp_path),
+        "run",
+        "--budget",
+        "tiny",
+        "--only",
+        cell,
+    ]
     # Killed (the whole process group, as a machine that stops) after its first checkpoint.
     process = subprocess.Popen(run, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     _wait_for(folder / "checkpoints" / "last.zip", process)
@@ -237,7 +263,7 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     internal = next(r for r in rows if r.startswith("| Internal | BCA |"))
     report = json.loads((folder / "eval" / "metrics.json").read_text())
     success = report["summary"]["success_pct"]["mean"]
-    assert f"| 1 | " in internal and f"| {success:.0f} ± " in internal and internal.endswith("| 97 / 80 |")
+    assert "| 1 | " in internal and f"| {success:.0f} ± " in internal and internal.endswith("| 97 / 80 |")
     assert next(r for r in rows if r.startswith("| ENN | LCCA |")).count("not run") == 6
     assert "1 of 30 cells finished" in text and info["commit"] in text
     assert (tmp_path / "paper_learning_curves.png").stat().st_size > 0

@@ -7,18 +7,30 @@ import mujoco
 import numpy as np
 import pytest
 
-from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc import tasks
-from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.control.policies import make_policy
+from cathsim_dmc.sim import physics as cs_physics
+from cathsim_dmc.suite.gym import CathSimEnv
 
 # What the compiled model's options were before they were set explicitly (commit 74caa34):
 # Newton with MuJoCo's defaults, noslip 5 (tolerance 0) inherited from dm_control's arena.
-BEFORE = dict(timestep=0.005, solver=mujoco.mjtSolver.mjSOL_NEWTON, iterations=100, tolerance=1e-8,
-              ls_iterations=50, ls_tolerance=0.01, noslip_iterations=5, noslip_tolerance=0.0,
-              jacobian=mujoco.mjtJacobian.mjJAC_AUTO, cone=mujoco.mjtCone.mjCONE_ELLIPTIC,
-              integrator=mujoco.mjtIntegrator.mjINT_IMPLICITFAST, ccd_iterations=35, impratio=1.0,
-              disableflags=int(mujoco.mjtDisableBit.mjDSBL_MULTICCD), enableflags=0)
+BEFORE = dict(
+    timestep=0.005,
+    solver=mujoco.mjtSolver.mjSOL_NEWTON,
+    iterations=100,
+    tolerance=1e-8,
+    ls_iterations=50,
+    ls_tolerance=0.01,
+    noslip_iterations=5,
+    noslip_tolerance=0.0,
+    jacobian=mujoco.mjtJacobian.mjJAC_AUTO,
+    cone=mujoco.mjtCone.mjCONE_ELLIPTIC,
+    integrator=mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    ccd_iterations=35,
+    impratio=1.0,
+    disableflags=int(mujoco.mjtDisableBit.mjDSBL_MULTICCD),
+    enableflags=0,
+)
 SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
 
@@ -41,11 +53,19 @@ def test_each_setting_reaches_the_compiled_model(name):
     assert opt.solver == int(getattr(mujoco.mjtSolver, f"mjSOL_{settings.solver.upper()}"))
     assert opt.jacobian == int(getattr(mujoco.mjtJacobian, f"mjJAC_{settings.jacobian.upper()}"))
     assert (opt.iterations, opt.tolerance, opt.noslip_iterations, opt.noslip_tolerance) == (
-        settings.iterations, settings.tolerance, settings.noslip_iterations, settings.noslip_tolerance)
+        settings.iterations,
+        settings.tolerance,
+        settings.noslip_iterations,
+        settings.noslip_tolerance,
+    )
     assert bool(opt.enableflags & SLEEP) == settings.sleep
     if name.startswith("fast"):
         assert (opt.solver, opt.iterations, opt.jacobian, opt.noslip_iterations) == (
-            int(mujoco.mjtSolver.mjSOL_PGS), 10, int(mujoco.mjtJacobian.mjJAC_DENSE), 0)
+            int(mujoco.mjtSolver.mjSOL_PGS),
+            10,
+            int(mujoco.mjtJacobian.mjJAC_DENSE),
+            0,
+        )
     # The wall: one SDF geom carrying its field, or one convex mesh per prism.
     model = env.physics.model.ptr
     wall = env.task.aorta.wall_geom_ids(env.physics)
@@ -57,13 +77,21 @@ def test_each_setting_reaches_the_compiled_model(name):
         assert (model.geom_type[wall] == mujoco.mjtGeom.mjGEOM_MESH).all()
 
 
-@pytest.mark.parametrize("load", [lambda: tasks.load("bca", "type1", physics="quick"),
-                                  lambda: CathSimEnv(physics="quick"),
-                                  lambda: tasks.check_options(physics="quick")])
+@pytest.mark.parametrize(
+    "load",
+    [
+        lambda: tasks.load("bca", "type1", physics="quick"),
+        lambda: CathSimEnv(physics="quick"),
+        lambda: tasks.check_options(physics="quick"),
+    ],
+)
 def test_an_unknown_setting_is_one_value_error_naming_the_choices(load):
     with pytest.raises(ValueError) as raised:
         load()
-    assert str(raised.value) == "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']"
+    assert (
+        str(raised.value)
+        == "physics='quick' is not a physics setting; choose one of ['accurate', 'fast', 'fast_field']"
+    )
 
 
 @pytest.mark.parametrize("name", ["accurate", "fast"])
@@ -142,7 +170,7 @@ def test_the_per_physics_step_total_is_the_reference_total(env_in_the_arch):
         for mask, reader in zip(masks, readers):
             pairs.append((cs_physics.total_contact_force_n(p, wire, mask), reader.total_n(p.data.ptr)))
         data = p.data.ptr
-        one_row[0] += int((data.contact.dim[:data.ncon] == 1).sum())
+        one_row[0] += int((data.contact.dim[: data.ncon] == 1).sum())
         task_callback(p)
 
     physics.after_constraint_solve = spy
@@ -177,8 +205,12 @@ def _read_after_full_forward(task, physics):
     model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
     mujoco.mj_copyData(data, model, physics.data.ptr)
     mujoco.mj_forward(model, data)
-    return cs_physics.wire_contacts(_Physics(model, data), task.measurements.wire_mask, recompute=False,
-                                    is_vessel_geom=task.measurements.vessel_mask)
+    return cs_physics.wire_contacts(
+        _Physics(model, data),
+        task.measurements.wire_mask,
+        recompute=False,
+        is_vessel_geom=task.measurements.vessel_mask,
+    )
 
 
 class _Physics:

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cathsim_dmc.learning.pretrained import load_pretrained, policy_files, shipped_targets
 from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
-from cathsim_dmc.learning.pretrained import load_pretrained, policy_files, shipped_targets
 
 
 def test_both_targets_ship_a_small_actor_with_a_card_naming_its_observations():
@@ -43,9 +43,21 @@ def test_a_shipped_navigator_loads_and_acts_deterministically(target):
 
 def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, repo_root):
     script = Path(sys.executable).with_name("cathsim-eval")
-    proc = subprocess.run([str(script), "policy=pretrained", "task=lcca", f"aorta={repo_root / 'assets' / 'type3'}",
-                           "episodes=1", "video=false", f"hydra.run.dir={tmp_path}"],
-                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    proc = subprocess.run(
+        [
+            str(script),
+            "policy=pretrained",
+            "task=lcca",
+            f"aorta={repo_root / 'assets' / 'type3'}",
+            "episodes=1",
+            "video=false",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr
     report = json.loads((tmp_path / "metrics.json").read_text())
     assert report["policy"] == "pretrained" and report["task"] == "lcca" and len(report["episodes"]) == 1

@@ -22,8 +22,11 @@ def text_files(root: Path):
         if path.is_file():
             yield path
         elif path.is_dir():
-            yield from (p for p in sorted(path.rglob("*"))
-                        if p.is_file() and p.suffix in TEXT_SUFFIXES and "__pycache__" not in p.parts)
+            yield from (
+                p
+                for p in sorted(path.rglob("*"))
+                if p.is_file() and p.suffix in TEXT_SUFFIXES and "__pycache__" not in p.parts
+            )
 
 
 def work_sense_mentions(root: Path) -> list:
@@ -54,5 +57,7 @@ def test_the_check_finds_the_word_and_spares_the_teleoperation(tmp_path):
     (tmp_path / "cathsim_dmc" / "gym.py").write_text("class TeleopSession: pass  # a class name is fine\n")
     (tmp_path / "docs" / "figure.png").write_bytes(b"session")  # not text: not read
     mentions = work_sense_mentions(tmp_path)
-    assert sorted(mentions) == ["conf/train.yaml:1: steps: 8000  # as in earlier sessions",
-                                "docs/page.md:2: ## Session 17: results"]
+    assert sorted(mentions) == [
+        "conf/train.yaml:1: steps: 8000  # as in earlier sessions",
+        "docs/page.md:2: ## Session 17: results",
+    ]

@@ -9,8 +9,8 @@ import pytest
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
-from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.core.shipped import resolve_asset
+from cathsim_dmc.suite.gym import CathSimEnv
 
 POOL = {"assets": ["type1", "type2"]}
 
@@ -21,8 +21,9 @@ def _anatomies(env, episodes):
         env.reset()
         names.append(env.anatomy_name)
         # The task is the drawn anatomy's: its target is that asset's BCA site.
-        np.testing.assert_allclose(env.task.target_position_m, load_asset(resolve_asset(names[-1])).sites["bca"],
-                                   atol=1e-6)
+        np.testing.assert_allclose(
+            env.task.target_position_m, load_asset(resolve_asset(names[-1])).sites["bca"], atol=1e-6
+        )
         env.step([1.0, 0.0])
     return names
 
@@ -41,7 +42,7 @@ def test_the_anatomy_changes_only_every_resample_every_episodes():
     env = tasks.load("bca", "random", seed=0, aorta_params=dict(POOL, resample_every=3))
     names = _anatomies(env, 12)
     for block in range(4):
-        assert len(set(names[3 * block:3 * block + 3])) == 1
+        assert len(set(names[3 * block : 3 * block + 3])) == 1
     env.close()
 
 
@@ -66,12 +67,15 @@ def test_cycle_order_visits_every_anatomy_in_turn():
     env.close()
 
 
-@pytest.mark.parametrize("params, needle", [
-    ({"order": "shuffled", **POOL}, "order='shuffled'"),
-    ({"pool_size": 0}, "pool_size=0"),
-    ({"resample_every": 0, **POOL}, "resample_every=0"),
-    ({"arch_width": 2}, "'arch_width'"),
-])
+@pytest.mark.parametrize(
+    "params, needle",
+    [
+        ({"order": "shuffled", **POOL}, "order='shuffled'"),
+        ({"pool_size": 0}, "pool_size=0"),
+        ({"resample_every": 0, **POOL}, "resample_every=0"),
+        ({"arch_width": 2}, "'arch_width'"),
+    ],
+)
 def test_bad_pool_settings_name_themselves(params, needle):
     with pytest.raises(ValueError, match=needle):
         tasks.load("bca", "random", aorta_params=params)
@@ -79,9 +83,24 @@ def test_bad_pool_settings_name_themselves(params, needle):
 
 def test_cathsim_eval_records_each_episodes_anatomy(tmp_path):
     run = tmp_path / "run"
-    result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", "task=bca", "aorta=random",
-                             "aorta.params.assets=[type1,type2]", "policy=expert", "episodes=4", "video=false",
-                             f"hydra.run.dir={run}"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cathsim_dmc.app.cli.eval",
+            "task=bca",
+            "aorta=random",
+            "aorta.params.assets=[type1,type2]",
+            "policy=expert",
+            "episodes=4",
+            "video=false",
+            f"hydra.run.dir={run}",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert result.returncode == 0, result.stderr
     data = np.load(run / "trajectories.npz")
     assert str(data["aorta"]) == "random" and len(data["episode_aorta"]) == 4

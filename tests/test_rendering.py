@@ -16,12 +16,11 @@ import cv2
 import numpy as np
 import pytest
 
-from cathsim_dmc.sim import raster
-
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
-from cathsim_dmc.sim.render import TopView
 from cathsim_dmc.core.shipped import resolve_asset
+from cathsim_dmc.sim import raster
+from cathsim_dmc.sim.render import TopView
 
 FRAMING_MARGIN = 1.1  # `OperatingArena.frame_cameras`
 
@@ -105,8 +104,7 @@ def start():
 def test_views_match_the_documented_camera_pose(start, camera, renderer):
     env, asset = start
     physics, task = env.physics, env.task
-    view = TopView(80, camera=camera, renderer=renderer, wire=task.guidewire,
-                   vessel_geom_id=task.aorta.visual_geom_id)
+    view = TopView(80, camera=camera, renderer=renderer, wire=task.guidewire, vessel_geom_id=task.aorta.visual_geom_id)
     mask = view.mask(physics)[..., 0] > 0
     # The wire: every point inside the view lands on the mask (within a pixel), and the
     # mask lies on the projected wire. Turned 180 degrees the mask would sit at the top.
@@ -128,8 +126,7 @@ def test_views_match_the_documented_camera_pose(start, camera, renderer):
     assert _iou(expected & away, fluoro & away) >= 0.88
     assert _iou(expected & away, shaded & away) >= 0.85
     # The targets lie in the vessel where the asset puts them.
-    sites = documented_pixels([asset.sites["bca"], asset.sites["lcca"], asset.entry_position], asset.bounds,
-                              camera, 80)
+    sites = documented_pixels([asset.sites["bca"], asset.sites["lcca"], asset.entry_position], asset.bounds, camera, 80)
     on_vessel, inside = _near(fluoro, sites, reach=0)
     assert inside.all() and on_vessel.all()
 

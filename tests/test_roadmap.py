@@ -61,9 +61,9 @@ def test_the_frame_points_z_along_the_shaft_and_x_towards_the_bend(env):
     env.reset(seed=2)
     obs = _drive(env, 10)
     bend = obs["roadmap"][BEND].astype(float)
-    assert bend[0] > 0.1 and abs(bend[1]) < 1e-5   # the bend lies along +x, none across
+    assert bend[0] > 0.1 and abs(bend[1]) < 1e-5  # the bend lies along +x, none across
     # The first path points lie ahead of the tip in the direction of insertion: up the shaft.
-    points = obs["roadmap"][:3 * len(AHEAD_MM)].reshape(-1, 3)
+    points = obs["roadmap"][: 3 * len(AHEAD_MM)].reshape(-1, 3)
     assert points[-1, 2] > points[0, 2]
 
 

@@ -16,9 +16,20 @@ import pytest
 from cathsim_dmc.app.cli.train import explicit_algo
 
 # A tiny training run; trainer.checkpoint_every is left at its default (with every evaluation).
-TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-        "algo.buffer_size=2000", "algo.net_arch=[32,32]", "trainer.eval_every=20", "trainer.eval_episodes=1",
-        "trainer.final_eval_episodes=2", "trainer.video=false", "trainer.progress_bar=false"]
+TINY = [
+    "obs=internal",
+    "demos=none",
+    "task.max_steps=20",
+    "algo.learning_starts=20",
+    "algo.batch_size=16",
+    "algo.buffer_size=2000",
+    "algo.net_arch=[32,32]",
+    "trainer.eval_every=20",
+    "trainer.eval_episodes=1",
+    "trainer.final_eval_episodes=2",
+    "trainer.video=false",
+    "trainer.progress_bar=false",
+]
 
 
 def _tool(name):
@@ -28,8 +39,10 @@ def _tool(name):
 # Runs a module with SIGINT back at its default first: a suite started in the background by
 # a non-interactive shell inherits SIGINT ignored, and Python keeps an ignored SIGINT, so
 # Ctrl-C would never reach the tool under test.
-_WITH_CTRL_C = "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
-               "sys.argv = sys.argv[1:]; runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)"
+_WITH_CTRL_C = (
+    "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "sys.argv = sys.argv[1:]; runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)"
+)
 
 
 _STARTED = []
@@ -47,8 +60,12 @@ def _no_process_outlives_its_test():
 
 def _start(name, args, cwd, log):
     """The tool as a process, its stdout and stderr in files (a pipe nobody reads could block it)."""
-    process = subprocess.Popen([sys.executable, "-c", _WITH_CTRL_C, f"cathsim_dmc.app.cli.{name}", *args], cwd=cwd,
-                               stdout=open(f"{log}.out", "w"), stderr=open(f"{log}.err", "w"))
+    process = subprocess.Popen(
+        [sys.executable, "-c", _WITH_CTRL_C, f"cathsim_dmc.app.cli.{name}", *args],
+        cwd=cwd,
+        stdout=open(f"{log}.out", "w"),
+        stderr=open(f"{log}.err", "w"),
+    )
     _STARTED.append(process)
     return process
 
@@ -82,17 +99,34 @@ def _assert_interrupted(process, log, timeout=600):
 
 def test_a_run_folder_evaluates_its_best_checkpoint_with_the_numbers_of_its_report(tmp_path):
     run = tmp_path / "run"
-    trained = subprocess.run([*_tool("train"), *TINY, "trainer.total_timesteps=60", f"hydra.run.dir={run}"],
-                             cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    trained = subprocess.run(
+        [*_tool("train"), *TINY, "trainer.total_timesteps=60", f"hydra.run.dir={run}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert trained.returncode == 0, trained.stderr[-2000:]
     assert (run / "checkpoints" / "best.zip").is_file()
     assert "recipe: algo=sac_tuned: batch_size 16" in _log(run)
     # The default cadence: a checkpoint with every periodic evaluation.
     assert {"step_20.zip", "step_40.zip", "step_60.zip"} <= {p.name for p in (run / "checkpoints").iterdir()}
 
-    evaluated = subprocess.run([*_tool("eval"), f"policy={run}", "episodes=2", "seed=10000", "task.max_steps=20",
-                                "video=false", f"hydra.run.dir={tmp_path}/eval"],
-                               cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    evaluated = subprocess.run(
+        [
+            *_tool("eval"),
+            f"policy={run}",
+            "episodes=2",
+            "seed=10000",
+            "task.max_steps=20",
+            "video=false",
+            f"hydra.run.dir={tmp_path}/eval",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert evaluated.returncode == 0, evaluated.stderr[-2000:]
     assert f"evaluating {run / 'checkpoints' / 'best.zip'}" in evaluated.stdout.splitlines()
     report = json.loads((run / "eval" / "metrics.json").read_text())
@@ -102,11 +136,20 @@ def test_a_run_folder_evaluates_its_best_checkpoint_with_the_numbers_of_its_repo
 
 def test_a_second_run_into_a_held_folder_is_refused_and_ctrl_c_keeps_the_finished_episodes(tmp_path):
     out = tmp_path / "out"
-    first = _start("eval", ["policy=expert", "episodes=5000", "task.max_steps=20", "video=false",
-                            f"hydra.run.dir={out}"], tmp_path, tmp_path / "first")
+    first = _start(
+        "eval",
+        ["policy=expert", "episodes=5000", "task.max_steps=20", "video=false", f"hydra.run.dir={out}"],
+        tmp_path,
+        tmp_path / "first",
+    )
     _wait_for(lambda: (out / ".lock").is_file())
-    second = subprocess.run([*_tool("eval"), "policy=forward", "episodes=1", "task.max_steps=5", "video=false",
-                             f"hydra.run.dir={out}"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    second = subprocess.run(
+        [*_tool("eval"), "policy=forward", "episodes=1", "task.max_steps=5", "video=false", f"hydra.run.dir={out}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert second.returncode == 2 and "Traceback" not in second.stderr
     assert second.stderr.strip().count("\n") == 0 and "in use by another run" in second.stderr
 
@@ -121,7 +164,10 @@ def test_a_second_run_into_a_held_folder_is_refused_and_ctrl_c_keeps_the_finishe
     assert report["partial"] is True and report["episodes_requested"] == 5000 and report["policy"] == "expert"
     assert f"[partial: {finished} of 5000 episodes]" in (out / "metrics.md").read_text()
     with np.load(out / "trajectories.npz") as trajectories:
-        assert set(trajectories["episode"]) == set(range(finished)) and len(trajectories["start_tip_position_m"]) == finished
+        assert (
+            set(trajectories["episode"]) == set(range(finished))
+            and len(trajectories["start_tip_position_m"]) == finished
+        )
         assert str(trajectories["policy"]) == "expert"
     assert not (out / ".lock").exists()
 
@@ -139,8 +185,16 @@ def test_default_run_folders_of_runs_started_together_differ(tmp_path):
 
 def test_ctrl_c_stops_training_with_a_checkpoint_and_shows_each_stage(tmp_path):
     run = tmp_path / "run"
-    args = [*TINY, "demos=expert", "demos.episodes=1", "demos.pretrain_actor_steps=5", "demos.critic_warmup_steps=5",
-            "trainer.progress_bar=true", "trainer.total_timesteps=100000", f"hydra.run.dir={run}"]
+    args = [
+        *TINY,
+        "demos=expert",
+        "demos.episodes=1",
+        "demos.pretrain_actor_steps=5",
+        "demos.critic_warmup_steps=5",
+        "trainer.progress_bar=true",
+        "trainer.total_timesteps=100000",
+        f"hydra.run.dir={run}",
+    ]
     process = _start("train", args, tmp_path, tmp_path / "train")
     last = run / "checkpoints" / "last.zip"
     _wait_for(lambda: last.is_file())
@@ -156,8 +210,9 @@ def test_ctrl_c_stops_training_with_a_checkpoint_and_shows_each_stage(tmp_path):
 @pytest.mark.slow
 def test_the_default_cadence_resumes_a_run_killed_at_a_random_step(tmp_path):
     run = tmp_path / "run"
-    process = _start("train", [*TINY, "trainer.total_timesteps=100", f"hydra.run.dir={run}"], tmp_path,
-                     tmp_path / "killed")
+    process = _start(
+        "train", [*TINY, "trainer.total_timesteps=100", f"hydra.run.dir={run}"], tmp_path, tmp_path / "killed"
+    )
     _wait_for(lambda: (run / "checkpoints" / "last.zip").is_file())
     time.sleep(np.random.default_rng().uniform(0.0, 3.0))
     os.kill(process.pid, signal.SIGKILL)
@@ -165,8 +220,9 @@ def test_the_default_cadence_resumes_a_run_killed_at_a_random_step(tmp_path):
     step = _step(run / "checkpoints" / "last.zip")
     assert step < 100, "finished before the kill"
     # resume= continues in the run's own folder, past the killed run's stale lock.
-    resumed = subprocess.run([*_tool("train"), f"resume={run}"], cwd=tmp_path, capture_output=True, text=True,
-                             timeout=900)
+    resumed = subprocess.run(
+        [*_tool("train"), f"resume={run}"], cwd=tmp_path, capture_output=True, text=True, timeout=900
+    )
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert _step(run / "final_model.zip") == 100
     assert f"resuming from step {step} of 100" in _log(run)
@@ -181,6 +237,7 @@ def test_an_image_preset_takes_its_measured_recipe_unless_algo_is_given():
 
     register_schemas()
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
+
         def algo(*overrides):
             cfg = compose("train", overrides=explicit_algo(list(overrides)))
             return cfg.algo.name, cfg.algo.batch_size, cfg.algo.share_features_extractor
@@ -195,8 +252,19 @@ def test_an_image_preset_takes_its_measured_recipe_unless_algo_is_given():
 
 def test_ctrl_c_stops_a_collection_keeping_its_finished_shards(tmp_path):
     out = tmp_path / "data"
-    process = _start("collect", ["episodes=5000", "episodes_per_shard=1", "task.max_steps=10", "progress_bar=false",
-                                 f"out={out}", f"hydra.run.dir={tmp_path}/run"], tmp_path, tmp_path / "collect")
+    process = _start(
+        "collect",
+        [
+            "episodes=5000",
+            "episodes_per_shard=1",
+            "task.max_steps=10",
+            "progress_bar=false",
+            f"out={out}",
+            f"hydra.run.dir={tmp_path}/run",
+        ],
+        tmp_path,
+        tmp_path / "collect",
+    )
     _wait_for(lambda: len(list(out.glob("shard_*.npz"))) >= 2)
     process.send_signal(signal.SIGINT)
     line = _assert_interrupted(process, tmp_path / "collect")

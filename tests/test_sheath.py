@@ -7,11 +7,11 @@ go forward into the lumen or back into the channel.
 
 import numpy as np
 import pytest
+from shipped import aorta_params
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy.containment import Channel, Containment
 from cathsim_dmc.anatomy.validate import open_end_plane
-from shipped import aorta_params
 
 
 def _outlet_m(task):
@@ -63,8 +63,11 @@ def test_wire_retracts_into_the_sheath_and_advances_again():
     # (the rail holds it there): extend the channel backwards by the pull.
     allowed = task.containment
     channel = allowed.channels[0]
-    task._containment = Containment(allowed.field, allowed.tolerance_m,
-                                    [Channel(channel.start_m - pull_m * direction, channel.end_m, channel.radius_m)])
+    task._containment = Containment(
+        allowed.field,
+        allowed.tolerance_m,
+        [Channel(channel.start_m - pull_m * direction, channel.end_m, channel.radius_m)],
+    )
     outlet = _outlet_m(task)
 
     def tip_past_outlet_m():
@@ -120,11 +123,14 @@ def test_issue_reproduction_never_reaches_beside_the_sheath():
     assert not task.containment.contains(beside[None])[0]
 
 
-@pytest.mark.parametrize("robot, match", [
-    (dict(seal_half_width_m=None), "no seal plate"),
-    (dict(seal_half_width_m=0.012), "does not cover the open end"),
-    (dict(initial_insertion_m=0.015), "must exceed the wire's tip_length_m"),
-])
+@pytest.mark.parametrize(
+    "robot, match",
+    [
+        (dict(seal_half_width_m=None), "no seal plate"),
+        (dict(seal_half_width_m=0.012), "does not cover the open end"),
+        (dict(initial_insertion_m=0.015), "must exceed the wire's tip_length_m"),
+    ],
+)
 def test_a_robot_that_cannot_seal_is_refused(robot, match):
     with pytest.raises(ValueError, match=match):
         tasks.build_task("bca", "type1", robot=robot)

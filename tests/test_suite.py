@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from shipped import task_params
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.core.shipped import available_aortas, resolve_asset
-from shipped import task_params
 
 
 def test_all_tasks_lists_every_pair():
@@ -14,11 +14,14 @@ def test_all_tasks_lists_every_pair():
     assert set(tasks.ALL_TASKS) == {(t, a) for t in tasks.TARGETS for a in available_aortas()}
 
 
-@pytest.mark.parametrize("bad, match", [
-    (dict(task="xyz"), "task='xyz'.*bca"),
-    (dict(aorta="xyz"), "aorta='xyz'.*type1"),
-    (dict(obs="xyz"), "obs='xyz'.*enn"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (dict(task="xyz"), "task='xyz'.*bca"),
+        (dict(aorta="xyz"), "aorta='xyz'.*type1"),
+        (dict(obs="xyz"), "obs='xyz'.*enn"),
+    ],
+)
 def test_unknown_names_name_the_choices(bad, match):
     kwargs = dict(task="bca", aorta="type1", obs="internal") | bad
     with pytest.raises(ValueError, match=match):
@@ -68,8 +71,15 @@ def _target_at_the_entry(tmp_path) -> str:
 def test_success_terminates_with_reward_and_zero_discount(max_steps, tmp_path):
     # The first step already succeeds. With max_steps=1 it is also the last allowed
     # step: a success still, not a time limit.
-    env = tasks.load("lcca", _target_at_the_entry(tmp_path), obs="internal", seed=0, delta_m=0.05,
-                     success_reward=10.0, max_steps=max_steps)
+    env = tasks.load(
+        "lcca",
+        _target_at_the_entry(tmp_path),
+        obs="internal",
+        seed=0,
+        delta_m=0.05,
+        success_reward=10.0,
+        max_steps=max_steps,
+    )
     env.reset()
     timestep = env.step(np.zeros(2))
     assert timestep.last() and timestep.reward == 10.0 and timestep.discount == 0.0
@@ -87,23 +97,27 @@ def test_sparse_reward_is_zero_until_the_target_is_reached(tmp_path):
     assert rewards[False] == [0.0] * 4
     assert all(r < -0.1 for r in rewards[True])  # the same steps, dense: minus the ~0.2 m to go
     # Reaching the target pays the success reward, sparse or not.
-    env = tasks.load("lcca", _target_at_the_entry(tmp_path), obs="internal", seed=0, dense=False, delta_m=0.05,
-                     success_reward=7.0)
+    env = tasks.load(
+        "lcca", _target_at_the_entry(tmp_path), obs="internal", seed=0, dense=False, delta_m=0.05, success_reward=7.0
+    )
     env.reset()
     timestep = env.step(np.zeros(2))
     assert timestep.last() and timestep.reward == 7.0 and timestep.discount == 0.0
 
 
-@pytest.mark.parametrize("bad, match", [
-    ([np.nan, 0.0], "is not finite"),
-    ([0.0, np.inf], "is not finite"),
-    ([1.0], r"has shape \(1,\)"),
-    ([1.0, 0.0, 0.0], r"has shape \(3,\)"),
-    ([[1.0, 0.0]], r"has shape \(1, 2\)"),
-    (None, r"action=None has shape \(\)"),
-    ("ab", "action='ab' is not numeric"),
-    ([1.0, [0.0, 1.0]], r"action=\[1.0, \[0.0, 1.0\]\] is not numeric"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ([np.nan, 0.0], "is not finite"),
+        ([0.0, np.inf], "is not finite"),
+        ([1.0], r"has shape \(1,\)"),
+        ([1.0, 0.0, 0.0], r"has shape \(3,\)"),
+        ([[1.0, 0.0]], r"has shape \(1, 2\)"),
+        (None, r"action=None has shape \(\)"),
+        ("ab", "action='ab' is not numeric"),
+        ([1.0, [0.0, 1.0]], r"action=\[1.0, \[0.0, 1.0\]\] is not numeric"),
+    ],
+)
 def test_invalid_actions_raise_before_physics(bad, match):
     env = tasks.load("bca", "type1", seed=0)
     env.reset()
@@ -115,8 +129,9 @@ def test_invalid_actions_raise_before_physics(bad, match):
     timestep = env.step([-4.0, 9.0])
     assert timestep.mid() and env.physics.data.time > time_s
     robot = env.task.robot
-    np.testing.assert_allclose(env.physics.bind(robot.actuators).ctrl,
-                               [-robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s])
+    np.testing.assert_allclose(
+        env.physics.bind(robot.actuators).ctrl, [-robot.max_insertion_speed_m_s, robot.max_rotation_speed_rad_s]
+    )
 
 
 def test_reset_does_not_recompile():

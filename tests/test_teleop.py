@@ -7,9 +7,21 @@ import sys
 
 import numpy as np
 
+from cathsim_dmc.control.teleop import (
+    KEY_DOWN,
+    KEY_LEFT,
+    KEY_Q,
+    KEY_R,
+    KEY_RIGHT,
+    KEY_SPACE,
+    KEY_UP,
+    QUIT,
+    RESET,
+    TeleopSession,
+    TeleopState,
+    handle_key,
+)
 from cathsim_dmc.evaluation.rollouts import METRICS_JSON, write_report
-from cathsim_dmc.control.teleop import (KEY_DOWN, KEY_LEFT, KEY_Q, KEY_R, KEY_RIGHT, KEY_SPACE, KEY_UP, QUIT, RESET,
-                                TeleopSession, TeleopState, handle_key)
 from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder, load_trajectories
 
 
@@ -38,8 +50,16 @@ def test_commands_and_unknown_keys():
 
 
 # A human-style session: push in, steer a little, back off, push again, start over, quit.
-SCRIPT = {0: [KEY_UP], 8: [KEY_LEFT], 11: [KEY_RIGHT], 18: [KEY_DOWN, KEY_DOWN], 21: [KEY_UP, KEY_UP],
-          30: [KEY_R], 31: [KEY_UP], 40: [KEY_Q]}
+SCRIPT = {
+    0: [KEY_UP],
+    8: [KEY_LEFT],
+    11: [KEY_RIGHT],
+    18: [KEY_DOWN, KEY_DOWN],
+    21: [KEY_UP, KEY_UP],
+    30: [KEY_R],
+    31: [KEY_UP],
+    40: [KEY_Q],
+}
 
 
 def test_scripted_session_is_recorded_and_scored(tmp_path):
@@ -58,8 +78,9 @@ def test_scripted_session_is_recorded_and_scored(tmp_path):
         session.tick()
     path = recorder.save(tmp_path / "trajectories.npz")
     arrays = load_trajectories(path)
-    report = write_report(arrays, env.task.aorta.asset, {"task": "bca", "aorta": "type1", "policy": "human"},
-                          tmp_path, session.summaries)
+    report = write_report(
+        arrays, env.task.aorta.asset, {"task": "bca", "aorta": "type1", "policy": "human"}, tmp_path, session.summaries
+    )
     env.close()
 
     np.testing.assert_array_equal(arrays["action"], np.asarray(expected))
@@ -71,6 +92,7 @@ def test_scripted_session_is_recorded_and_scored(tmp_path):
 
 def test_without_a_display_it_says_so_and_exits_2(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    run = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.teleop"], capture_output=True, text=True,
-                         cwd=tmp_path, env=env)
+    run = subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.teleop"], capture_output=True, text=True, cwd=tmp_path, env=env
+    )
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and "xvfb-run" in run.stderr, run.stderr

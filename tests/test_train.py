@@ -7,14 +7,26 @@ import zipfile
 
 import numpy as np
 
-TINY = ["obs=internal", "demos=none", "task.max_steps=20", "algo.learning_starts=20", "algo.batch_size=16",
-        "algo.buffer_size=2000", "trainer.checkpoint_every=30", "trainer.eval_every=0", "trainer.eval_episodes=1",
-        "trainer.final_eval_episodes=1", "trainer.video=false", "trainer.progress_bar=false"]
+TINY = [
+    "obs=internal",
+    "demos=none",
+    "task.max_steps=20",
+    "algo.learning_starts=20",
+    "algo.batch_size=16",
+    "algo.buffer_size=2000",
+    "trainer.checkpoint_every=30",
+    "trainer.eval_every=0",
+    "trainer.eval_episodes=1",
+    "trainer.final_eval_episodes=1",
+    "trainer.video=false",
+    "trainer.progress_bar=false",
+]
 
 
 def _train(args, cwd):
-    return subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.train", *args], cwd=cwd, capture_output=True, text=True, timeout=900
+    )
 
 
 def _steps(checkpoint) -> int:
@@ -36,9 +48,23 @@ def test_a_trained_run_evaluates_under_its_own_physics_and_resumes_from_its_last
     assert policy_file["obs"] == "internal" and policy_file["env_options"]["physics"] == "accurate"
 
     def evaluate(name, *extra):
-        result = subprocess.run([sys.executable, "-m", "cathsim_dmc.app.cli.eval", f"policy={run}", "episodes=1",
-                                 "task.max_steps=10", "video=false", f"hydra.run.dir={tmp_path}/{name}", *extra],
-                                cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "cathsim_dmc.app.cli.eval",
+                f"policy={run}",
+                "episodes=1",
+                "task.max_steps=10",
+                "video=false",
+                f"hydra.run.dir={tmp_path}/{name}",
+                *extra,
+            ],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert result.returncode == 0, result.stderr[-2000:]
         return json.loads((tmp_path / name / "metrics.json").read_text())
 
@@ -64,9 +90,21 @@ def test_replay_buffer_is_sized_for_the_run_and_grows_on_resume():
     from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
-    algo = dict(learning_rate=3e-4, buffer_size=40, learning_starts=100, batch_size=8, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
-                net_arch=[32, 32], share_features_extractor=False)
+    algo = dict(
+        learning_rate=3e-4,
+        buffer_size=40,
+        learning_starts=100,
+        batch_size=8,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=1,
+        target_entropy=-2.0,
+        ent_coef="auto_1.0",
+        net_arch=[32, 32],
+        share_features_extractor=False,
+    )
     model = build_sac(env, algo, 0, "cpu", None)
     model.learn(25)
     held = model.replay_buffer.observations["joint_pos"][:25].copy()
@@ -87,29 +125,43 @@ def test_the_periodic_evaluation_keeps_sb3s_evaluation_callbacks():
     from stable_baselines3.common.callbacks import BaseCallback, StopTrainingOnRewardThreshold
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.learning.rl.callbacks import PeriodicEvaluation
     from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     class Calls(BaseCallback):
         def _on_step(self):  # on_step counts the calls in n_calls
             return True
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
-    algo = dict(learning_rate=3e-4, buffer_size=200, learning_starts=1000, batch_size=8, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
-                net_arch=[32, 32], share_features_extractor=False)
+    algo = dict(
+        learning_rate=3e-4,
+        buffer_size=200,
+        learning_starts=1000,
+        batch_size=8,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=1,
+        target_entropy=-2.0,
+        ent_coef="auto_1.0",
+        net_arch=[32, 32],
+        share_features_extractor=False,
+    )
     model = build_sac(env, algo, 0, "cpu", None)
     after = Calls()
-    evaluation = PeriodicEvaluation(CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0,
-                                    callback_after_eval=after)
+    evaluation = PeriodicEvaluation(
+        CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0, callback_after_eval=after
+    )
     model.learn(30, callback=evaluation)
     assert after.n_calls == 3
     # 5-step episodes never reach the target: the best is the highest return.
     assert np.isfinite(evaluation.last_mean_reward) and evaluation.best_mean_reward >= evaluation.last_mean_reward
     stop = StopTrainingOnRewardThreshold(reward_threshold=-1e9)  # any best stops training
-    evaluation = PeriodicEvaluation(CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0,
-                                    callback_on_new_best=stop)
+    evaluation = PeriodicEvaluation(
+        CathSimEnv("bca", "type1", obs="internal", max_steps=5), 10, 1, seed=0, callback_on_new_best=stop
+    )
     model.learn(100, callback=evaluation, reset_num_timesteps=False)
     assert model.num_timesteps == 40 and stop.n_calls == 1
     env.close()
@@ -119,8 +171,9 @@ def test_short_run_with_the_papers_buffer_allocates_only_what_it_uses(tmp_path):
     # obs=enn with a 1e6 buffer needs 24.9 GiB; a 30-step run stores 30 transitions.
     run = tmp_path / "run"
     tiny = [a for a in TINY if not a.startswith(("obs=", "algo.buffer_size="))]
-    result = _train([*tiny, "obs=enn", "algo.buffer_size=1000000", "trainer.total_timesteps=30",
-                     f"hydra.run.dir={run}"], tmp_path)
+    result = _train(
+        [*tiny, "obs=enn", "algo.buffer_size=1000000", "trainer.total_timesteps=30", f"hydra.run.dir={run}"], tmp_path
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert (run / "eval" / "metrics.md").is_file()
 
@@ -132,9 +185,21 @@ def test_device_option_reaches_the_model():
     from cathsim_dmc.learning.rl.train import build_sac, make_env_fn
 
     env = DummyVecEnv([make_env_fn("bca", "type1", "internal", 0, {"max_steps": 5})])
-    algo = dict(learning_rate=3e-4, buffer_size=100, learning_starts=10, batch_size=8, tau=0.005, gamma=0.99,
-                train_freq=1, gradient_steps=1, target_update_interval=1, target_entropy=-2.0, ent_coef="auto_1.0",
-                net_arch=[32, 32], share_features_extractor=False)
+    algo = dict(
+        learning_rate=3e-4,
+        buffer_size=100,
+        learning_starts=10,
+        batch_size=8,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=1,
+        target_entropy=-2.0,
+        ent_coef="auto_1.0",
+        net_arch=[32, 32],
+        share_features_extractor=False,
+    )
     assert build_sac(env, algo, 0, "cpu", None).device.type == "cpu"
     # "cuda" is used where a GPU exists; stable-baselines3 falls back to the CPU elsewhere.
     assert build_sac(env, algo, 0, "cuda", None).device.type == ("cuda" if torch.cuda.is_available() else "cpu")
@@ -145,14 +210,27 @@ def test_seed_sweep_through_submitit_local_writes_one_table(tmp_path):
     # The cluster path (conf/hydra/launcher/slurm.yaml) differs from this one only in
     # the submitit executor: each run is a separate process, pickled and launched.
     sweep = tmp_path / "sweep"
-    result = _train(["-m", "hydra/launcher=local", "seed=0,1", *TINY, "trainer.total_timesteps=30",
-                     "trainer.final_eval_episodes=2", f"hydra.sweep.dir={sweep}"], tmp_path)
+    result = _train(
+        [
+            "-m",
+            "hydra/launcher=local",
+            "seed=0,1",
+            *TINY,
+            "trainer.total_timesteps=30",
+            "trainer.final_eval_episodes=2",
+            f"hydra.sweep.dir={sweep}",
+        ],
+        tmp_path,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     runs = sorted(p.parent.parent.name for p in sweep.glob("*/eval/metrics.json"))
     assert runs == ["bca-type1-internal-seed0", "bca-type1-internal-seed1"]
     rows = (sweep / "metrics.md").read_text().strip().splitlines()[2:]
-    assert [r.split(" | ")[2] for r in rows] == ["sac-internal (seed 0)", "sac-internal (seed 1)",
-                                                 "sac-internal (2 seeds)"]
+    assert [r.split(" | ")[2] for r in rows] == [
+        "sac-internal (seed 0)",
+        "sac-internal (seed 1)",
+        "sac-internal (2 seeds)",
+    ]
     # The pooled row is over all four episodes of both seeds.
     reports = json.loads((sweep / "metrics.json").read_text())
     paths = [e["path_length_cm"] for r in reports for e in r["per_episode"]]
@@ -161,8 +239,9 @@ def test_seed_sweep_through_submitit_local_writes_one_table(tmp_path):
 
 
 def test_slurm_launcher_config_composes_with_the_shipped_settings(tmp_path):
-    result = _train(["hydra/launcher=slurm", "hydra.launcher.partition=gpu", "--cfg", "hydra", "-p",
-                     "hydra.launcher"], tmp_path)
+    result = _train(
+        ["hydra/launcher=slurm", "hydra.launcher.partition=gpu", "--cfg", "hydra", "-p", "hydra.launcher"], tmp_path
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "SlurmLauncher" in result.stdout and "partition: gpu" in result.stdout
     assert "gpus_per_node: 1" in result.stdout and "mem_gb: 32" in result.stdout

@@ -1,12 +1,11 @@
 """cathsim-view's replay: a recorded episode played back reproduces the recorded tip path."""
 
-import numpy as np
 import pytest
 
 from cathsim_dmc.app.cli.view import episode_actions, replay
-from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.control.teleop import KEY_LEFT, KEY_R, KEY_UP, TeleopSession
 from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 def test_replay_reproduces_the_recording():

@@ -54,18 +54,24 @@ def _wall_and_capsule(triangles, capsule_from, capsule_to, radius=0.445e-3):
     spec = mujoco.MjSpec()
     spec.add_numeric(name="wall", data=field, size=len(field))
     spec.add_mesh(name="wall").uservert = np.array(
-        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]).ravel()
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    ).ravel()
     spec.worldbody.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_SDF, meshname="wall", margin=MARGIN_M)
     body = spec.worldbody.add_body(name="capsule")
     body.add_freejoint()
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=np.concatenate([capsule_from, capsule_to]),
-                  size=[radius, 0, 0])
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=np.concatenate([capsule_from, capsule_to]), size=[radius, 0, 0]
+    )
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     # Copies: a contact read from mjData is a view that dies with it.
-    return [SimpleNamespace(dist=float(c.dist), includemargin=float(c.includemargin), pos=c.pos.copy(),
-                            frame=c.frame.copy()) for c in (data.contact[i] for i in range(data.ncon))]
+    return [
+        SimpleNamespace(
+            dist=float(c.dist), includemargin=float(c.includemargin), pos=c.pos.copy(), frame=c.frame.copy()
+        )
+        for c in (data.contact[i] for i in range(data.ncon))
+    ]
 
 
 def flat_face(z=0.0, half=0.02):
@@ -97,10 +103,14 @@ def test_a_capsule_across_a_ridge_touches_it_in_the_middle():
     x = 0.02
     corners = {(sx, sy): [sx * x, sy * 0.02, slope * x] for sx in (-1, 1) for sy in (-1, 1)}
     top = {sy: [0.0, sy * 0.02, 0.0] for sy in (-1, 1)}
-    triangles = np.array([
-        [corners[(-1, -1)], top[-1], top[1]], [corners[(-1, -1)], top[1], corners[(-1, 1)]],
-        [top[-1], corners[(1, -1)], corners[(1, 1)]], [top[-1], corners[(1, 1)], top[1]],
-    ])
+    triangles = np.array(
+        [
+            [corners[(-1, -1)], top[-1], top[1]],
+            [corners[(-1, -1)], top[1], corners[(-1, 1)]],
+            [top[-1], corners[(1, -1)], corners[(1, 1)]],
+            [top[-1], corners[(1, 1)], top[1]],
+        ]
+    )
     radius = 0.445e-3
     z = -radius + 0.1e-3
     contacts = _wall_and_capsule(triangles, [-0.007, 0, z], [0.007, 0, z], radius)
@@ -131,8 +141,10 @@ print(data.ncon, repr(data.contact.dist.tolist()), repr(data.contact.pos.tolist(
 def test_sdf_geoms_without_a_field_keep_mujocos_own_contact():
     """The compiled test answers only for geoms carrying a field: a plain SDF geom (MuJoCo
     builds the distance of its mesh) gets the same contacts as without the test installed."""
-    runs = [subprocess.run([sys.executable, "-c", SLAB_AND_SPHERE, mode], capture_output=True, text=True, timeout=120)
-            for mode in ("installed", "plain")]
+    runs = [
+        subprocess.run([sys.executable, "-c", SLAB_AND_SPHERE, mode], capture_output=True, text=True, timeout=120)
+        for mode in ("installed", "plain")
+    ]
     assert all(run.returncode == 0 for run in runs), [run.stderr for run in runs]
     assert runs[0].stdout == runs[1].stdout
     assert int(runs[0].stdout.split()[0]) >= 1
@@ -140,7 +152,10 @@ def test_sdf_geoms_without_a_field_keep_mujocos_own_contact():
 
 def test_a_missing_compiler_is_one_clear_error(tmp_path):
     env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), CATHSIM_DMC_CACHE=str(tmp_path / "cache"))
-    code = "from cathsim_dmc import wall_field\ntry:\n    wall_field.native()\nexcept wall_field.NativeBuildError as e:\n    print(e)"
+    code = (
+        "from cathsim_dmc.sim import wall_field\n"
+        "try:\n    wall_field.native()\nexcept wall_field.NativeBuildError as e:\n    print(e)"
+    )
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "no-such-cc" in result.stdout and "physics=fast needs none" in result.stdout
@@ -151,7 +166,7 @@ def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path):
     blocked.write_text("not a folder")  # the cache's folders cannot be made under it
     env = dict(os.environ, CATHSIM_DMC_CACHE=str(blocked), TMPDIR=str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
-    code = "from cathsim_dmc import wall_field\nprint(wall_field.native()._name)"
+    code = "from cathsim_dmc.sim import wall_field\nprint(wall_field.native()._name)"
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().startswith(str(tmp_path / "tmp"))
@@ -162,8 +177,8 @@ def test_an_asset_without_prisms_is_refused(tmp_path):
     other convex sets (here the first prism with its last point dropped) is refused."""
     import shutil
 
-    from cathsim_dmc.entities import Aorta
     from cathsim_dmc.core.shipped import resolve_asset
+    from cathsim_dmc.entities import Aorta
 
     folder = tmp_path / "odd"
     shutil.copytree(resolve_asset("type1"), folder)

@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 from dm_control import mjcf
 
+from cathsim_dmc.entities import Guidewire
 from cathsim_dmc.evaluation import fidelity
-
 from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.sim import physics as cs_physics
-from cathsim_dmc.entities import Guidewire
 
 # The fidelity gate of the physics settings: the beam, tip, force and insertion checks hold under each.
 SETTINGS = list(cs_physics.PHYSICS_SETTINGS)
@@ -87,27 +86,44 @@ def _seam_contacts(margin_m, depth_m=0.6e-3, approach_m_s=0.09):
         inner = np.array([[-10 * mm, 0, 0], [10 * mm, 0, 0], [0, side * 10 * mm, 0]])
         pieces.append(np.vstack([inner, inner - [0, 0, thickness]]))
     root = mjcf.RootElement()
-    root.option.set_attributes(timestep=wire.physics_timestep_s, gravity=[0, 0, 0], integrator="implicitfast",
-                               cone="elliptic")
+    root.option.set_attributes(
+        timestep=wire.physics_timestep_s, gravity=[0, 0, 0], integrator="implicitfast", cone="elliptic"
+    )
     root.option.flag.multiccd = "disable"
     for i, piece in enumerate(moved_outward(pieces, margin_m)):
         mesh = root.asset.add("mesh", name=f"piece{i}", vertex=piece.ravel())
-        root.worldbody.add("geom", name=f"piece{i}", type="mesh", mesh=mesh, margin=margin_m,
-                           contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY,
-                           solref=list(wire.contact_solref), solimp=list(wire.contact_solimp))
+        root.worldbody.add(
+            "geom",
+            name=f"piece{i}",
+            type="mesh",
+            mesh=mesh,
+            margin=margin_m,
+            contype=geom_groups.WALL_CONTYPE,
+            conaffinity=geom_groups.WALL_CONAFFINITY,
+            solref=list(wire.contact_solref),
+            solimp=list(wire.contact_solimp),
+        )
     segment_m = wire.segment_lengths_m[1]
     body = root.worldbody.add("body", pos=[0, 0, wire.radius_m - depth_m])
     body.add("freejoint")
-    body.add("geom", name="segment", type="capsule", fromto=[-segment_m / 2, 0, 0, segment_m / 2, 0, 0],
-             size=[wire.radius_m], contype=geom_groups.WIRE_CONTYPE, conaffinity=geom_groups.WIRE_CONAFFINITY,
-             mass=float(wire.mass_scale * 6450.0 * np.pi * wire.radius_m**2 * segment_m),
-             solref=list(wire.contact_solref), solimp=list(wire.contact_solimp))
+    body.add(
+        "geom",
+        name="segment",
+        type="capsule",
+        fromto=[-segment_m / 2, 0, 0, segment_m / 2, 0, 0],
+        size=[wire.radius_m],
+        contype=geom_groups.WIRE_CONTYPE,
+        conaffinity=geom_groups.WIRE_CONAFFINITY,
+        mass=float(wire.mass_scale * 6450.0 * np.pi * wire.radius_m**2 * segment_m),
+        solref=list(wire.contact_solref),
+        solimp=list(wire.contact_solimp),
+    )
     physics = mjcf.Physics.from_mjcf_model(root)
     physics.data.qvel[2] = -approach_m_s
     is_wire = np.zeros(physics.model.ngeom, bool)
     is_wire[physics.model.name2id("segment", "geom")] = True
     contacts = cs_physics.wire_contacts(physics, is_wire, is_vessel_geom=~is_wire)
-    return contacts.forces_n, physics.data.contact.frame[:physics.data.ncon, :3]
+    return contacts.forces_n, physics.data.contact.frame[: physics.data.ncon, :3]
 
 
 def test_a_wire_deep_in_a_seam_between_wall_pieces_reads_its_load():

@@ -21,27 +21,82 @@ dm_control.
 """
 
 from cathsim_dmc.anatomy.arch import ArchModel, Vessel, build_arch, path_to_site
-from cathsim_dmc.anatomy.asset import (FORMAT_VERSION, AortaAsset, BuildReport, Centerline, build_asset,
-                                       load_asset, write_asset)
+from cathsim_dmc.anatomy.asset import (
+    FORMAT_VERSION,
+    AortaAsset,
+    BuildReport,
+    Centerline,
+    build_asset,
+    load_asset,
+    write_asset,
+)
 from cathsim_dmc.anatomy.containment import Channel, Containment, LumenField, build_lumen_field, lumen_field
-from cathsim_dmc.anatomy.generate import (CACHE_ENV, arch_params, cache_root, generated_asset, params_hash,
-                                          sample_arch_params)
+from cathsim_dmc.anatomy.generate import (
+    CACHE_ENV,
+    arch_params,
+    cache_root,
+    generated_asset,
+    params_hash,
+    sample_arch_params,
+)
 from cathsim_dmc.anatomy.lumen import Lumen, build_lumen
-from cathsim_dmc.anatomy.parameters import (ARCH_OBLIQUITY_DEG, ARCH_TYPE_ELONGATION, ARCH_TYPE_NOMINAL_RATIO,
-                                            ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, BRANCHES, ArchParams, arch_type_of,
-                                            normalize_arch_type, ostia_obliquity_deg, with_arch_type)
+from cathsim_dmc.anatomy.parameters import (
+    ARCH_OBLIQUITY_DEG,
+    ARCH_TYPE_ELONGATION,
+    ARCH_TYPE_NOMINAL_RATIO,
+    ARCH_TYPE_RATIO_RANGE,
+    ARCH_TYPES,
+    BRANCHES,
+    ArchParams,
+    arch_type_of,
+    normalize_arch_type,
+    ostia_obliquity_deg,
+    with_arch_type,
+)
 from cathsim_dmc.anatomy.presets import PRESETS
 from cathsim_dmc.anatomy.sdf import signed_distance
 from cathsim_dmc.anatomy.validate import ValidationReport, validate_asset
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 __all__ = [
-    "ARCH_OBLIQUITY_DEG", "ARCH_TYPE_ELONGATION", "ARCH_TYPE_NOMINAL_RATIO", "ARCH_TYPE_RATIO_RANGE", "ARCH_TYPES", "BRANCHES",
-    "PRESETS", "ArchModel", "ArchParams", "Vessel", "arch_type_of", "build_arch", "normalize_arch_type",
-    "ostia_obliquity_deg", "path_to_site", "with_arch_type",
-    "FORMAT_VERSION", "AortaAsset", "BuildReport", "Centerline", "build_asset", "load_asset", "write_asset",
-    "Channel", "Containment", "LumenField", "build_lumen_field", "lumen_field",
-    "CACHE_ENV", "arch_params", "cache_root", "generated_asset", "params_hash", "sample_arch_params",
-    "Lumen", "build_lumen", "extrude_prisms", "signed_distance",
-    "ValidationReport", "validate_asset",
+    "ARCH_OBLIQUITY_DEG",
+    "ARCH_TYPE_ELONGATION",
+    "ARCH_TYPE_NOMINAL_RATIO",
+    "ARCH_TYPE_RATIO_RANGE",
+    "ARCH_TYPES",
+    "BRANCHES",
+    "PRESETS",
+    "ArchModel",
+    "ArchParams",
+    "Vessel",
+    "arch_type_of",
+    "build_arch",
+    "normalize_arch_type",
+    "ostia_obliquity_deg",
+    "path_to_site",
+    "with_arch_type",
+    "FORMAT_VERSION",
+    "AortaAsset",
+    "BuildReport",
+    "Centerline",
+    "build_asset",
+    "load_asset",
+    "write_asset",
+    "Channel",
+    "Containment",
+    "LumenField",
+    "build_lumen_field",
+    "lumen_field",
+    "CACHE_ENV",
+    "arch_params",
+    "cache_root",
+    "generated_asset",
+    "params_hash",
+    "sample_arch_params",
+    "Lumen",
+    "build_lumen",
+    "extrude_prisms",
+    "signed_distance",
+    "ValidationReport",
+    "validate_asset",
 ]

@@ -47,18 +47,18 @@ class ArchModel:
     """Centrelines, radii and landmarks of one generated arch."""
 
     params: ArchParams
-    aorta: Vessel            # from below the open inferior end up, over the arch, to the root
+    aorta: Vessel  # from below the open inferior end up, over the arch, to the root
     branches: Dict[str, Vessel]  # each from its origin on the aortic centreline to its closed end
-    aorta_open_s: float      # arclength on `aorta` of the open inferior end (cut plane)
-    branch_origin_s: Dict[str, float]   # arclength on `aorta` where each branch centreline starts
-    ostia: Dict[str, np.ndarray]        # ostium centres (branch centreline meets nominal aortic wall)
+    aorta_open_s: float  # arclength on `aorta` of the open inferior end (cut plane)
+    branch_origin_s: Dict[str, float]  # arclength on `aorta` where each branch centreline starts
+    ostia: Dict[str, np.ndarray]  # ostium centres (branch centreline meets nominal aortic wall)
     sites: Dict[str, np.ndarray]
     entry_position: np.ndarray
     entry_direction: np.ndarray
     open_end_center: np.ndarray
     open_end_radius: float
-    arch_top_y: float        # top of the outer curvature (nominal tube surface)
-    arch_s: Tuple[float, float] = (0.0, 0.0)   # arclength on `aorta` of the arch's ends (descending, ascending)
+    arch_top_y: float  # top of the outer curvature (nominal tube surface)
+    arch_s: Tuple[float, float] = (0.0, 0.0)  # arclength on `aorta` of the arch's ends (descending, ascending)
 
     @property
     def vessels(self) -> Tuple[Vessel, ...]:
@@ -127,19 +127,16 @@ class _ArchCurve:
 
     def point(self, theta):
         theta = np.asarray(theta, dtype=float)
-        return np.stack([self.a * np.cos(theta), self.b * np.sin(theta),
-                         -self.hd * np.cos(theta)], axis=-1)
+        return np.stack([self.a * np.cos(theta), self.b * np.sin(theta), -self.hd * np.cos(theta)], axis=-1)
 
     def tangent(self, theta):
         theta = np.asarray(theta, dtype=float)
-        return _unit(np.stack([-self.a * np.sin(theta), self.b * np.cos(theta),
-                               self.hd * np.sin(theta)], axis=-1))
+        return _unit(np.stack([-self.a * np.sin(theta), self.b * np.cos(theta), self.hd * np.sin(theta)], axis=-1))
 
     def normal(self, theta):
         """Outward normal (away from the curvature centre), orthogonal to the tangent."""
         theta = np.asarray(theta, dtype=float)
-        n = np.stack([np.cos(theta) / self.a, np.sin(theta) / self.b,
-                      np.zeros_like(theta)], axis=-1)
+        n = np.stack([np.cos(theta) / self.a, np.sin(theta) / self.b, np.zeros_like(theta)], axis=-1)
         t = self.tangent(theta)
         n = n - np.sum(n * t, axis=-1, keepdims=True) * t
         return _unit(n)
@@ -161,8 +158,8 @@ def _bisect(f, lo, hi, iters=80):
 # Model construction
 
 
-_SAMPLE_M = 0.0005       # centreline sample spacing of the model
-_CUT_MARGIN_M = 0.012    # the aorta tube continues this far below the open end (trimmed away)
+_SAMPLE_M = 0.0005  # centreline sample spacing of the model
+_CUT_MARGIN_M = 0.012  # the aorta tube continues this far below the open end (trimmed away)
 
 
 def build_arch(params: ArchParams) -> ArchModel:
@@ -182,7 +179,7 @@ def build_arch(params: ArchParams) -> ArchModel:
     asc = np.stack([np.full(2, -arch.a), [0.0, -p.ascending_length_m], np.full(2, arch.hd)], axis=1)
     raw = np.concatenate([desc, arch.point(th_dense)[1:], resample_polyline(asc, _SAMPLE_M)[1:]])
     s_raw = arclength(raw)
-    s_theta = s_raw[len(desc) - 1:len(desc) - 1 + len(th_dense)]
+    s_theta = s_raw[len(desc) - 1 : len(desc) - 1 + len(th_dense)]
     s_of_theta = lambda t: float(np.interp(t, th_dense, s_theta))
     points = resample_polyline(raw, _SAMPLE_M)
     s = arclength(points)
@@ -236,9 +233,11 @@ def build_arch(params: ArchParams) -> ArchModel:
 
     # The ostia sit on the aortic wall, whose radius depends on where they are:
     # start from the Hager arch radii, then iterate (converges in 2-3 rounds).
-    r_of_theta = lambda t: np.interp(t, [0.0, math.pi / 2, math.pi],
-                                     [p.isthmus_diameter_m / 2, p.distal_arch_diameter_m / 2,
-                                      p.proximal_arch_diameter_m / 2])
+    r_of_theta = lambda t: np.interp(
+        t,
+        [0.0, math.pi / 2, math.pi],
+        [p.isthmus_diameter_m / 2, p.distal_arch_diameter_m / 2, p.proximal_arch_diameter_m / 2],
+    )
     for _ in range(4):
         theta = place_branches(r_of_theta)
         radius = radius_profile(theta)
@@ -254,8 +253,9 @@ def build_arch(params: ArchParams) -> ArchModel:
         u = (s - seg_lo) / max(seg_hi - seg_lo, 1e-9)
         window = np.sin(math.pi * np.clip(u, 0, 1)) ** 2
         points = points.copy()
-        points[:, 0] += p.tortuosity_amplitude_m * window * np.sin(
-            2 * math.pi * (s - seg_lo) / p.tortuosity_wavelength_m + phase)
+        points[:, 0] += (
+            p.tortuosity_amplitude_m * window * np.sin(2 * math.pi * (s - seg_lo) / p.tortuosity_wavelength_m + phase)
+        )
         s_new = arclength(points)
         s_br = {b: float(np.interp(v, s, s_new)) for b, v in s_br.items()}
         s_arch0, s_arch1 = (float(np.interp(v, s, s_new)) for v in (s_arch0, s_arch1))
@@ -305,11 +305,20 @@ def build_arch(params: ArchParams) -> ArchModel:
         sites = {b: turn(v) for b, v in sites.items()}
         open_c, entry = turn(open_c), turn(entry)
     return ArchModel(
-        params=p, aorta=aorta, branches=branches, aorta_open_s=s_open,
-        branch_origin_s=s_br, ostia=ostia, sites=sites,
-        entry_position=entry, entry_direction=np.array([0.0, 1.0, 0.0]),
-        open_end_center=open_c, open_end_radius=r_open, arch_top_y=top_y,
-        arch_s=(float(s_arch0), float(s_arch1)))
+        params=p,
+        aorta=aorta,
+        branches=branches,
+        aorta_open_s=s_open,
+        branch_origin_s=s_br,
+        ostia=ostia,
+        sites=sites,
+        entry_position=entry,
+        entry_direction=np.array([0.0, 1.0, 0.0]),
+        open_end_center=open_c,
+        open_end_radius=r_open,
+        arch_top_y=top_y,
+        arch_s=(float(s_arch0), float(s_arch1)),
+    )
 
 
 def _turn_about_descending(angle_deg: float, arch: _ArchCurve):
@@ -326,8 +335,7 @@ def _turn_about_descending(angle_deg: float, arch: _ArchCurve):
     return turn
 
 
-def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,
-                 fillet_m: float = 0.010) -> np.ndarray:
+def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015, fillet_m: float = 0.010) -> np.ndarray:
     """Polyline from the entry along the aorta and into `branch`, ending at its site.
 
     The corner where the branch centreline leaves the aortic centreline is
@@ -348,7 +356,7 @@ def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,
     br = model.branches[branch]
     ub = br.arclength
     R_a = float(np.interp(s_origin, s, model.aorta.radius))
-    u_join = R_a + 0.25 * p.site_depth_m   # a little past the ostium, in the branch
+    u_join = R_a + 0.25 * p.site_depth_m  # a little past the ostium, in the branch
     u_site = R_a + p.site_depth_m
     bat = lambda uq: np.array([np.interp(uq, ub, br.points[:, k]) for k in range(3)])
     tangent_b = _unit(bat(u_join + 1e-4) - bat(u_join - 1e-4))
@@ -356,7 +364,7 @@ def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015,
     h = 0.5 * np.linalg.norm(P3 - P0)
     P1, P2 = P0 + h * tangent_a, P3 - h * tangent_b
     t = np.linspace(0, 1, 200)[:, None]
-    bez = ((1 - t) ** 3) * P0 + 3 * ((1 - t) ** 2) * t * P1 + 3 * (1 - t) * t * t * P2 + t ** 3 * P3
+    bez = ((1 - t) ** 3) * P0 + 3 * ((1 - t) ** 2) * t * P1 + 3 * (1 - t) * t * t * P2 + t**3 * P3
     keep_b = (ub > u_join) & (ub < u_site)
     tail = np.concatenate([br.points[keep_b], [bat(u_site)]])
     path = np.concatenate([head, bez[1:], tail])

@@ -49,8 +49,8 @@ _JSON_DECIMALS = 8  # 10 nm: far below any meshing tolerance
 
 
 class Centerline(NamedTuple):
-    points: np.ndarray   # (N, 3) metres, from the entry to the site
-    radius: np.ndarray   # (N,) lumen radius at each point, metres
+    points: np.ndarray  # (N, 3) metres, from the entry to the site
+    radius: np.ndarray  # (N,) lumen radius at each point, metres
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,13 +65,13 @@ class AortaAsset:
     entry_direction: np.ndarray
     centerlines: Dict[str, Centerline]
     wall_thickness_m: float
-    bounds: np.ndarray               # (2, 3): min, max of the visual mesh
+    bounds: np.ndarray  # (2, 3): min, max of the visual mesh
     arch_type_distance_m: Optional[float]
     cca_diameter_m: Optional[float]
-    visual_vertices: np.ndarray      # (V, 3) float32
-    visual_faces: np.ndarray         # (F, 3) int32
-    hull_vertices: np.ndarray        # (M, 3) float32
-    hull_offsets: np.ndarray         # (H + 1,) int32
+    visual_vertices: np.ndarray  # (V, 3) float32
+    visual_faces: np.ndarray  # (F, 3) int32
+    hull_vertices: np.ndarray  # (M, 3) float32
+    hull_offsets: np.ndarray  # (H + 1,) int32
     params: dict
 
     @property
@@ -82,7 +82,7 @@ class AortaAsset:
     def hulls(self) -> Tuple[np.ndarray, ...]:
         """Each collision hull as its own (k, 3) float32 array."""
         o = self.hull_offsets
-        return tuple(self.hull_vertices[o[i]:o[i + 1]] for i in range(len(o) - 1))
+        return tuple(self.hull_vertices[o[i] : o[i + 1]] for i in range(len(o) - 1))
 
 
 # ----------------------------------------------------------------------------
@@ -109,8 +109,10 @@ def _read_stl(path: pathlib.Path) -> Tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"Aorta asset file {path} is not a binary STL (too short).")
     count = int(np.frombuffer(data, "<u4", 1, 80)[0])
     if len(data) != 84 + count * _STL_DTYPE.itemsize:
-        raise ValueError(f"Aorta asset file {path} is not a binary STL: {count} triangles "
-                         f"declared but the file has {len(data)} bytes.")
+        raise ValueError(
+            f"Aorta asset file {path} is not a binary STL: {count} triangles "
+            f"declared but the file has {len(data)} bytes."
+        )
     rec = np.frombuffer(data, _STL_DTYPE, count, 84)
     corners = rec["v"].reshape(-1, 3)
     # STL repeats shared vertices; merge exact duplicates to recover the indexed mesh.
@@ -133,7 +135,7 @@ def _write_npz(path: pathlib.Path, arrays: Mapping[str, np.ndarray]) -> None:
 def json_rounded(x):
     """JSON-ready nested lists rounded to 8 decimals (10 nm for metres): deterministic, compact."""
     a = np.asarray(x, dtype=np.float64)
-    a = np.round(a, _JSON_DECIMALS) + 0.0   # + 0.0 turns -0.0 into 0.0
+    a = np.round(a, _JSON_DECIMALS) + 0.0  # + 0.0 turns -0.0 into 0.0
     return a.tolist()
 
 
@@ -155,15 +157,24 @@ def _json_params(params: Mapping) -> dict:
 # Writing
 
 
-def write_asset(folder, *, name: str, description: str,
-                vertices: np.ndarray, faces: np.ndarray, hulls: Sequence[np.ndarray],
-                sites: Mapping[str, Sequence[float]],
-                entry_position: Sequence[float], entry_direction: Sequence[float],
-                centerlines: Mapping[str, Tuple[np.ndarray, np.ndarray]],
-                wall_thickness_m: float, params: Mapping,
-                arch_type_distance_m: Optional[float] = None,
-                cca_diameter_m: Optional[float] = None,
-                extra: Optional[Mapping] = None) -> pathlib.Path:
+def write_asset(
+    folder,
+    *,
+    name: str,
+    description: str,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    hulls: Sequence[np.ndarray],
+    sites: Mapping[str, Sequence[float]],
+    entry_position: Sequence[float],
+    entry_direction: Sequence[float],
+    centerlines: Mapping[str, Tuple[np.ndarray, np.ndarray]],
+    wall_thickness_m: float,
+    params: Mapping,
+    arch_type_distance_m: Optional[float] = None,
+    cca_diameter_m: Optional[float] = None,
+    extra: Optional[Mapping] = None,
+) -> pathlib.Path:
     """Write an asset folder (format_version 1). Returns the folder path.
 
     `vertices`/`faces`: the closed lumen surface (outward normals) in metres.
@@ -193,8 +204,10 @@ def write_asset(folder, *, name: str, description: str,
         "description": description,
         "sites": {k: json_rounded(sites[k]) for k in sorted(sites)},
         "entry": {"position": json_rounded(entry_position), "direction": json_rounded(direction)},
-        "centerlines": {k: {"points": json_rounded(centerlines[k][0]),
-                            "radius_m": json_rounded(centerlines[k][1])} for k in sorted(centerlines)},
+        "centerlines": {
+            k: {"points": json_rounded(centerlines[k][0]), "radius_m": json_rounded(centerlines[k][1])}
+            for k in sorted(centerlines)
+        },
         "wall_thickness_m": float(wall_thickness_m),
         "bounds": json_rounded(bounds),
         "arch_type_distance_m": None if arch_type_distance_m is None else json_rounded(arch_type_distance_m),
@@ -247,8 +260,10 @@ def load_asset(path) -> AortaAsset:
         raise _bad(meta_path, "the top level must be a JSON object")
     version = meta.get("format_version")
     if version != FORMAT_VERSION:
-        raise ValueError(f"Aorta asset {meta_path} has format_version {version!r}; "
-                         f"this cathsim-dmc reads format_version {FORMAT_VERSION}.")
+        raise ValueError(
+            f"Aorta asset {meta_path} has format_version {version!r}; "
+            f"this cathsim-dmc reads format_version {FORMAT_VERSION}."
+        )
     required = ("name", "units", "sites", "entry", "centerlines", "wall_thickness_m", "bounds", "params")
     for key in required:
         if key not in meta:
@@ -295,23 +310,41 @@ def load_asset(path) -> AortaAsset:
         raise ValueError(f"Aorta asset file {col_path} is not a readable npz ({exc}).") from None
     if hv.dtype != np.float32 or hv.ndim != 2 or hv.shape[1] != 3:
         raise _bad(col_path, f"'vertices' must be float32 (M, 3), got {hv.dtype} {hv.shape}")
-    if ho.dtype != np.int32 or ho.ndim != 1 or len(ho) < 2 or ho[0] != 0 or ho[-1] != len(hv) \
-            or np.any(np.diff(ho) < 4):
-        raise _bad(col_path, "'hull_offsets' must be int32, start at 0, end at len(vertices) "
-                             "and give every hull at least 4 points")
+    if (
+        ho.dtype != np.int32
+        or ho.ndim != 1
+        or len(ho) < 2
+        or ho[0] != 0
+        or ho[-1] != len(hv)
+        or np.any(np.diff(ho) < 4)
+    ):
+        raise _bad(
+            col_path,
+            "'hull_offsets' must be int32, start at 0, end at len(vertices) and give every hull at least 4 points",
+        )
 
     def opt(key):
         v = meta.get(key)
         return None if v is None else float(v)
 
     return AortaAsset(
-        path=folder, name=str(meta["name"]), meta=meta, sites=sites,
-        entry_position=_readonly(entry_pos), entry_direction=_readonly(entry_dir),
-        centerlines=centerlines, wall_thickness_m=float(meta["wall_thickness_m"]),
-        bounds=_readonly(bounds), arch_type_distance_m=opt("arch_type_distance_m"),
+        path=folder,
+        name=str(meta["name"]),
+        meta=meta,
+        sites=sites,
+        entry_position=_readonly(entry_pos),
+        entry_direction=_readonly(entry_dir),
+        centerlines=centerlines,
+        wall_thickness_m=float(meta["wall_thickness_m"]),
+        bounds=_readonly(bounds),
+        arch_type_distance_m=opt("arch_type_distance_m"),
         cca_diameter_m=opt("cca_diameter_m"),
-        visual_vertices=_readonly(vis_v), visual_faces=_readonly(vis_f),
-        hull_vertices=_readonly(hv), hull_offsets=_readonly(ho), params=dict(meta["params"]))
+        visual_vertices=_readonly(vis_v),
+        visual_faces=_readonly(vis_f),
+        hull_vertices=_readonly(hv),
+        hull_offsets=_readonly(ho),
+        params=dict(meta["params"]),
+    )
 
 
 # ----------------------------------------------------------------------------
@@ -331,7 +364,7 @@ class BuildReport:
     tortuosity: Dict[str, float] = dataclasses.field(default_factory=dict)
     max_aortic_diameter_m: float = 0.0
     obliquity_deg: float = 0.0  # BCA-LSA ostia line from the coronal plane (ArchModel.obliquity_deg)
-    mesher_version: int = 1     # lumen.build_lumen's
+    mesher_version: int = 1  # lumen.build_lumen's
 
     @property
     def arch_type_ratio(self) -> float:
@@ -364,8 +397,20 @@ UNRECORDED_MESHER_VERSION = 1
 # would invalidate those tables. When the tables are re-run, rebuild these assets at
 # lumen.MESHER_VERSION (drop them from here) in the same change. A preset not listed is
 # built at the current version.
-SHIPPED_MESHER_VERSIONS = {name: 1 for name in ("type1", "type2", "type3", "aneurysm", "low_tortuosity", "bovine",
-                                                "type1_oblique", "type2_oblique", "type3_oblique")}
+SHIPPED_MESHER_VERSIONS = {
+    name: 1
+    for name in (
+        "type1",
+        "type2",
+        "type3",
+        "aneurysm",
+        "low_tortuosity",
+        "bovine",
+        "type1_oblique",
+        "type2_oblique",
+        "type3_oblique",
+    )
+}
 
 
 def recorded_mesher_version(meta: Mapping) -> int:
@@ -404,14 +449,16 @@ def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildRe
         raise ValueError(
             f"ArchParams '{p.name}' is labelled arch type {p.arch_type} but its BCA origin lies "
             f"{model.arch_type_distance_m / model.cca_diameter_m:.2f} CCA diameters below the arch top "
-            f"(type {model.arch_type_measured}); fix bca_origin_drop_m or arch_type.")
+            f"(type {model.arch_type_measured}); fix bca_origin_drop_m or arch_type."
+        )
     description = (
         f"Procedural aortic arch '{p.name}' (arch type {p.arch_type}, measured "
         f"{model.arch_type_measured}): descending aorta (open inferior end, wire entry), arch, "
         f"ascending aorta closed at the root; BCA, LCCA, LSA closed {p.branch_length_m('bca') * 100:.1f}/"
         f"{p.branch_length_m('lcca') * 100:.1f}/{p.branch_length_m('lsa') * 100:.1f} cm past their ostia. "
         f"Lumen: smooth union of tapered tubes ({p.blend_radius_m * 1e3:.0f} mm blend); "
-        f"wall: one {p.wall_thickness_m * 1e3:.0f} mm prism per lumen triangle.")
+        f"wall: one {p.wall_thickness_m * 1e3:.0f} mm prism per lumen triangle."
+    )
     if p.bovine:
         description += " Bovine arch: the BCA and LCCA share one ostium."
     if p.aneurysm_diameter_m > 0:
@@ -419,26 +466,46 @@ def build_asset(params, folder, mesher_version: Optional[int] = None) -> BuildRe
     if p.tortuosity_amplitude_m > 0:
         description += f" Tortuous descending aorta ({p.tortuosity_amplitude_m * 1e3:.0f} mm lateral amplitude)."
     write_asset(
-        folder, name=p.name, description=description,
-        vertices=lumen.vertices, faces=lumen.faces, hulls=prisms,
+        folder,
+        name=p.name,
+        description=description,
+        vertices=lumen.vertices,
+        faces=lumen.faces,
+        hulls=prisms,
         sites={b: model.sites[b] for b in BRANCHES},
-        entry_position=model.entry_position, entry_direction=model.entry_direction,
-        centerlines=centerlines, wall_thickness_m=p.wall_thickness_m,
+        entry_position=model.entry_position,
+        entry_direction=model.entry_direction,
+        centerlines=centerlines,
+        wall_thickness_m=p.wall_thickness_m,
         params=params_record(p),
-        arch_type_distance_m=model.arch_type_distance_m, cca_diameter_m=model.cca_diameter_m,
-        extra={"open_end": {"center": json_rounded(model.open_end_center),
-                            "normal": [0.0, -1.0, 0.0],
-                            "radius_m": json_rounded(model.open_end_radius)},
-               "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
-               "arch_type": model.arch_type_measured,
-               **({"arch_obliquity_deg": round(model.obliquity_deg, 3)} if p.arch_rotation_deg else {}),
-               "ostia": {b: json_rounded(model.ostia[b]) for b in BRANCHES},
-               "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
-               "max_aortic_diameter_m": json_rounded(max_diameter),
-               **({"mesher_version": mesher_version} if mesher_version != UNRECORDED_MESHER_VERSION else {})})
+        arch_type_distance_m=model.arch_type_distance_m,
+        cca_diameter_m=model.cca_diameter_m,
+        extra={
+            "open_end": {
+                "center": json_rounded(model.open_end_center),
+                "normal": [0.0, -1.0, 0.0],
+                "radius_m": json_rounded(model.open_end_radius),
+            },
+            "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
+            "arch_type": model.arch_type_measured,
+            **({"arch_obliquity_deg": round(model.obliquity_deg, 3)} if p.arch_rotation_deg else {}),
+            "ostia": {b: json_rounded(model.ostia[b]) for b in BRANCHES},
+            "tortuosity": {k: round(v, 6) for k, v in tortuosity.items()},
+            "max_aortic_diameter_m": json_rounded(max_diameter),
+            **({"mesher_version": mesher_version} if mesher_version != UNRECORDED_MESHER_VERSION else {}),
+        },
+    )
     return BuildReport(
-        path=pathlib.Path(folder), triangles=int(len(lumen.faces)), hulls=int(len(prisms)),
-        seconds=time.perf_counter() - t0, arch_type_distance_m=model.arch_type_distance_m,
-        cca_diameter_m=model.cca_diameter_m, arch_type=model.arch_type_measured,
-        path_length_m=lengths, tortuosity=tortuosity, max_aortic_diameter_m=max_diameter,
-        obliquity_deg=model.obliquity_deg, mesher_version=mesher_version)
+        path=pathlib.Path(folder),
+        triangles=int(len(lumen.faces)),
+        hulls=int(len(prisms)),
+        seconds=time.perf_counter() - t0,
+        arch_type_distance_m=model.arch_type_distance_m,
+        cca_diameter_m=model.cca_diameter_m,
+        arch_type=model.arch_type_measured,
+        path_length_m=lengths,
+        tortuosity=tortuosity,
+        max_aortic_diameter_m=max_diameter,
+        obliquity_deg=model.obliquity_deg,
+        mesher_version=mesher_version,
+    )

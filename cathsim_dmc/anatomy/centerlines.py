@@ -14,9 +14,8 @@ from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
 from cathsim_dmc.anatomy.sdf import SDFGrid, signed_distance
 from cathsim_dmc.anatomy.validate import PROBE_RADIUS_M
 
-
 _OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]) - 1
-_OFFSETS = _OFFSETS[[tuple(o) > (0, 0, 0) for o in _OFFSETS]]          # 13 of the 26 neighbours
+_OFFSETS = _OFFSETS[[tuple(o) > (0, 0, 0) for o in _OFFSETS]]  # 13 of the 26 neighbours
 
 
 def _grid_graph(grid: SDFGrid, clearance: float):
@@ -79,8 +78,9 @@ def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=
     def node_near(p, what):
         d, i = tree.query(p)
         if d > 3 * grid.spacing:
-            raise MeshImportError(f"{what} lies where the lumen is narrower than the {2 * probe * 1e3:.1f} mm "
-                                  f"wire probe")
+            raise MeshImportError(
+                f"{what} lies where the lumen is narrower than the {2 * probe * 1e3:.1f} mm wire probe"
+            )
         return int(i)
 
     src = node_near(entry, "entry")
@@ -89,8 +89,9 @@ def lumen_centerlines(grid, v, f, entry, sites: Mapping[str, np.ndarray], probe=
     for k, site in sites.items():
         dst = node_near(site, f"site {k}")
         if not np.isfinite(dist[dst]):
-            raise MeshImportError(f"site {k} cannot be reached from the entry through lumen at least "
-                                  f"{2 * probe * 1e3:.1f} mm wide")
+            raise MeshImportError(
+                f"site {k} cannot be reached from the entry through lumen at least {2 * probe * 1e3:.1f} mm wide"
+            )
         chain = [dst]
         while chain[-1] != src:
             chain.append(int(pred[chain[-1]]))
@@ -106,7 +107,7 @@ def estimate_entry_direction(grid, entry, centerlines) -> np.ndarray:
     h = grid.spacing
     lo = np.maximum(np.floor((entry - radius - grid.origin) / h).astype(int), 0)
     hi = np.minimum(np.ceil((entry + radius - grid.origin) / h).astype(int) + 1, np.array(grid.values.shape))
-    sub = grid.values[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+    sub = grid.values[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
     idx = np.argwhere(sub < 0) + lo
     pts = grid.origin + h * idx
     pts = pts[np.linalg.norm(pts - entry, axis=1) < radius]

@@ -48,9 +48,9 @@ _memory_cache: dict = {}
 class LumenField:
     """Signed distance to a closed lumen surface (POSITIVE inside) on a regular grid."""
 
-    origin_m: np.ndarray   # (3,) position of values_m[0, 0, 0]
+    origin_m: np.ndarray  # (3,) position of values_m[0, 0, 0]
     spacing_m: float
-    values_m: np.ndarray   # (nx, ny, nz) float32, clamped to +-truncation_m
+    values_m: np.ndarray  # (nx, ny, nz) float32, clamped to +-truncation_m
     truncation_m: float
 
     @property
@@ -70,17 +70,26 @@ class LumenField:
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         g = ((points - self.origin_m) / self.spacing_m).T
         # The outer nodes all read -truncation_m, so "constant" extends the field unchanged.
-        out = ndimage.map_coordinates(self.values_m, np.nan_to_num(g, nan=-1.0), output=np.float64, order=1,
-                                      mode="constant", cval=-self.truncation_m)
+        out = ndimage.map_coordinates(
+            self.values_m,
+            np.nan_to_num(g, nan=-1.0),
+            output=np.float64,
+            order=1,
+            mode="constant",
+            cval=-self.truncation_m,
+        )
         return out
 
 
-def build_lumen_field(vertices, faces, spacing_m: float = DEFAULT_SPACING_M,
-                      truncation_m: float = DEFAULT_TRUNCATION_M) -> LumenField:
+def build_lumen_field(
+    vertices, faces, spacing_m: float = DEFAULT_SPACING_M, truncation_m: float = DEFAULT_TRUNCATION_M
+) -> LumenField:
     """Samples the signed distance to a closed, outward-oriented mesh (metres) on a grid."""
     if spacing_m <= 0 or truncation_m <= spacing_m * np.sqrt(3.0):
-        raise ValueError(f"spacing_m={spacing_m} and truncation_m={truncation_m}: need 0 < spacing_m "
-                         f"and truncation_m > spacing_m * sqrt(3), or no node is exact")
+        raise ValueError(
+            f"spacing_m={spacing_m} and truncation_m={truncation_m}: need 0 < spacing_m "
+            f"and truncation_m > spacing_m * sqrt(3), or no node is exact"
+        )
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     # Every node within the truncation of the mesh, plus two cells, so that the outer
@@ -88,16 +97,21 @@ def build_lumen_field(vertices, faces, spacing_m: float = DEFAULT_SPACING_M,
     margin = truncation_m + 2 * spacing_m
     origin = vertices.min(axis=0) - margin
     shape = np.ceil((vertices.max(axis=0) + margin - origin) / spacing_m).astype(int) + 1
-    triangles = (vertices[faces] - origin) / spacing_m   # grid units from here on
+    triangles = (vertices[faces] - origin) / spacing_m  # grid units from here on
     distance = _truncated_distance(triangles, shape, truncation_m / spacing_m)
     votes = sum(_ray_parity(triangles, shape, axis) for axis in range(3))
     values = np.where(votes >= 2, distance, -distance) * spacing_m
-    return LumenField(origin_m=origin, spacing_m=float(spacing_m), values_m=values.astype(np.float32),
-                      truncation_m=float(truncation_m))
+    return LumenField(
+        origin_m=origin,
+        spacing_m=float(spacing_m),
+        values_m=values.astype(np.float32),
+        truncation_m=float(truncation_m),
+    )
 
 
-def _truncated_distance(triangles: np.ndarray, shape: np.ndarray, truncation: float,
-                        chunk_pairs: int = 400_000) -> np.ndarray:
+def _truncated_distance(
+    triangles: np.ndarray, shape: np.ndarray, truncation: float, chunk_pairs: int = 400_000
+) -> np.ndarray:
     """min(distance to the mesh, truncation) at every node, in grid units."""
     import trimesh  # local: only building a field needs it
 
@@ -127,7 +141,7 @@ def _ray_parity(triangles: np.ndarray, shape: np.ndarray, axis: int) -> np.ndarr
     """1 where a ray along -`axis` from the node crosses the mesh an odd number of times."""
     u_axis, v_axis = [a for a in range(3) if a != axis]
     offset = np.array(_RAY_OFFSET)
-    uv = triangles[:, :, [u_axis, v_axis]] - offset        # rays through integer (u, v)
+    uv = triangles[:, :, [u_axis, v_axis]] - offset  # rays through integer (u, v)
     lo = np.clip(np.ceil(uv.min(axis=1)).astype(int), 0, shape[[u_axis, v_axis]] - 1)
     hi = np.clip(np.floor(uv.max(axis=1)).astype(int), -1, shape[[u_axis, v_axis]] - 1)
     dims = np.maximum(hi - lo + 1, 0)
@@ -142,9 +156,10 @@ def _ray_parity(triangles: np.ndarray, shape: np.ndarray, axis: int) -> np.ndarr
     area = wa + wb + wc
     hit = (np.abs(area) > 1e-12) & (((wa >= 0) & (wb >= 0) & (wc >= 0)) | ((wa <= 0) & (wb <= 0) & (wc <= 0)))
     tri, column = tri[hit], column[hit]
-    t = (wa[hit] * triangles[tri, 0, axis] + wb[hit] * triangles[tri, 1, axis]
-         + wc[hit] * triangles[tri, 2, axis]) / area[hit]
-    first = np.maximum(np.ceil(t).astype(int), 0)             # the first node past the crossing
+    t = (
+        wa[hit] * triangles[tri, 0, axis] + wb[hit] * triangles[tri, 1, axis] + wc[hit] * triangles[tri, 2, axis]
+    ) / area[hit]
+    first = np.maximum(np.ceil(t).astype(int), 0)  # the first node past the crossing
     keep = first < shape[axis]
     flips = np.zeros(shape, dtype=np.uint8)
     index = [None, None, None]
@@ -155,9 +170,11 @@ def _ray_parity(triangles: np.ndarray, shape: np.ndarray, axis: int) -> np.ndarr
 
 def _field_key(vertices, faces, spacing_m, truncation_m) -> str:
     digest = hashlib.sha256()
-    for part in (f"{FIELD_VERSION} {spacing_m!r} {truncation_m!r}".encode(),
-                 np.ascontiguousarray(vertices, dtype=np.float32).tobytes(),
-                 np.ascontiguousarray(faces, dtype=np.int32).tobytes()):
+    for part in (
+        f"{FIELD_VERSION} {spacing_m!r} {truncation_m!r}".encode(),
+        np.ascontiguousarray(vertices, dtype=np.float32).tobytes(),
+        np.ascontiguousarray(faces, dtype=np.int32).tobytes(),
+    ):
         digest.update(len(part).to_bytes(8, "little"))
         digest.update(part)
     return digest.hexdigest()[:32]
@@ -169,8 +186,9 @@ def field_cache_dir() -> pathlib.Path:
     return cache_root().parent / "lumen_fields"
 
 
-def lumen_field(asset, spacing_m: float = DEFAULT_SPACING_M, truncation_m: float = DEFAULT_TRUNCATION_M,
-                cache: bool = True) -> LumenField:
+def lumen_field(
+    asset, spacing_m: float = DEFAULT_SPACING_M, truncation_m: float = DEFAULT_TRUNCATION_M, cache: bool = True
+) -> LumenField:
     """The `LumenField` of an `AortaAsset`'s visual (lumen) mesh, built once and cached."""
     key = _field_key(asset.visual_vertices, asset.visual_faces, spacing_m, truncation_m)
     if cache and key in _memory_cache:
@@ -191,8 +209,12 @@ def _load(path: pathlib.Path):
         return None
     try:
         with np.load(path, allow_pickle=False) as npz:
-            field = LumenField(origin_m=npz["origin_m"], spacing_m=float(npz["spacing_m"]),
-                               values_m=npz["values_m"], truncation_m=float(npz["truncation_m"]))
+            field = LumenField(
+                origin_m=npz["origin_m"],
+                spacing_m=float(npz["spacing_m"]),
+                values_m=npz["values_m"],
+                truncation_m=float(npz["truncation_m"]),
+            )
         os.utime(path)  # most recently used
         return field
     except Exception:  # a truncated or foreign file: build again and replace it
@@ -205,8 +227,13 @@ def _save(field: LumenField, path: pathlib.Path) -> None:
         # Atomic: concurrent builds of the same field never read a partial file.
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, origin_m=field.origin_m, spacing_m=field.spacing_m,
-                                values_m=field.values_m, truncation_m=field.truncation_m)
+            np.savez_compressed(
+                fh,
+                origin_m=field.origin_m,
+                spacing_m=field.spacing_m,
+                values_m=field.values_m,
+                truncation_m=field.truncation_m,
+            )
         os.replace(tmp, path)
         old = sorted(path.parent.glob("*.npz"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
         for stale in old[MAX_CACHED_FIELDS:]:
@@ -239,8 +266,10 @@ class Containment:
 
     def __init__(self, field: LumenField, tolerance_m: float, channels: Iterable[Channel] = ()):
         if not 0.0 <= tolerance_m <= field.exact_within_m:
-            raise ValueError(f"tolerance_m={tolerance_m} must lie in [0, {field.exact_within_m:.4g}] m, "
-                             f"where this field's interpolation is exact (truncation_m - spacing_m * sqrt(3))")
+            raise ValueError(
+                f"tolerance_m={tolerance_m} must lie in [0, {field.exact_within_m:.4g}] m, "
+                f"where this field's interpolation is exact (truncation_m - spacing_m * sqrt(3))"
+            )
         self.field = field
         self.tolerance_m = float(tolerance_m)
         self.channels = tuple(channels)

@@ -45,9 +45,19 @@ from cathsim_dmc.anatomy import PRESETS, build_arch
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.sdf import arch_sdf_grid
 
-VARIANTS = ("noisy", "decimated", "pinched", "stump", "wall_shell", "jagged_cap", "cfd_caps", "cfd_open",
-            "staircase", "self_intersecting")
-VOXEL_M = 0.001                      # about 260k triangles; 0.0009 gives about 320k
+VARIANTS = (
+    "noisy",
+    "decimated",
+    "pinched",
+    "stump",
+    "wall_shell",
+    "jagged_cap",
+    "cfd_caps",
+    "cfd_open",
+    "staircase",
+    "self_intersecting",
+)
+VOXEL_M = 0.001  # about 260k triangles; 0.0009 gives about 320k
 
 
 @functools.lru_cache(maxsize=1)
@@ -147,8 +157,9 @@ def _end_planes(model):
     ends of a CFD wall. The descending aorta's end is its start (the wire comes in there)."""
     ends = []
     a = model.aorta
-    for points, radius in [(a.points[::-1], a.radius[::-1]), (a.points, a.radius)] + \
-            [(b.points, b.radius) for b in model.branches.values()]:
+    for points, radius in [(a.points[::-1], a.radius[::-1]), (a.points, a.radius)] + [
+        (b.points, b.radius) for b in model.branches.values()
+    ]:
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
         i = int(np.searchsorted(s, s[-1] - 0.006))
         n = points[-1] - points[i]
@@ -197,7 +208,7 @@ def _voxel_faces(inside, origin, spacing):
         eu, ew = np.eye(3, dtype=int)[u], np.eye(3, dtype=int)[w]
         for sign, where in ((1, a & ~b), (-1, ~a & b)):
             for ijk in np.argwhere(where):
-                base = ijk + step            # the shared face lies between voxel ijk and ijk + step
+                base = ijk + step  # the shared face lies between voxel ijk and ijk + step
                 quad = [vid(base), vid(base + eu), vid(base + eu + ew), vid(base + ew)]
                 if sign < 0:
                     quad = quad[::-1]
@@ -234,7 +245,7 @@ def make_variant(name: str, folder, voxel_m: float = VOXEL_M) -> "tuple[pathlib.
         return _write(folder, name, v, f, [], model)
     inside = values < 0
     v, f = _mask_surface(inside, origin, voxel_m)
-    if name.startswith("cfd_"):      # flat ends, exact on their planes, as a CFD mesher leaves them
+    if name.startswith("cfd_"):  # flat ends, exact on their planes, as a CFD mesher leaves them
         for p, n, r in ends:
             d = (v - p) @ n
             snap = (np.abs(d) < 0.0006) & (np.linalg.norm(v - p, axis=1) < 1.5 * r)
@@ -254,8 +265,9 @@ def make_variant(name: str, folder, voxel_m: float = VOXEL_M) -> "tuple[pathlib.
         v = np.concatenate([v, tips])
     elif name == "self_intersecting":
         # 20 vertices of the ring where the BCA meets the aorta (within 1.5 mm of its radius from its ostium).
-        ring = np.flatnonzero(np.abs(np.linalg.norm(v - model.ostia["bca"], axis=1)
-                                     - model.branches["bca"].radius[0]) < 0.0015)
+        ring = np.flatnonzero(
+            np.abs(np.linalg.norm(v - model.ostia["bca"], axis=1) - model.branches["bca"].radius[0]) < 0.0015
+        )
         thrown = rng.choice(ring, 20, replace=False)
         v[thrown] += rng.normal(0.0, 0.002 / np.sqrt(3), (20, 3))
     elif name == "wall_shell":

@@ -27,8 +27,7 @@ from scipy import ndimage
 from cathsim_dmc.anatomy.polyline import resample_polyline
 from cathsim_dmc.anatomy.sdf import SDFGrid
 
-
-CAP_ROUNDING_M = 0.001   # the crop's caps are smoothed over this length (see remove_region)
+CAP_ROUNDING_M = 0.001  # the crop's caps are smoothed over this length (see remove_region)
 
 
 def _node(grid: SDFGrid, p) -> tuple:
@@ -36,7 +35,7 @@ def _node(grid: SDFGrid, p) -> tuple:
     return tuple(np.clip(np.rint((np.asarray(p, dtype=np.float64) - grid.origin) / grid.spacing).astype(int), 0, n))
 
 
-CROP_NODE_M = 0.001       # the crop's region is found on nodes about this far apart (the cut is then smoothed)
+CROP_NODE_M = 0.001  # the crop's region is found on nodes about this far apart (the cut is then smoothed)
 
 
 def path_tube(grid: SDFGrid, paths: Sequence[np.ndarray], stride: int = 1) -> np.ndarray:
@@ -86,8 +85,14 @@ def remove_region(grid: SDFGrid, removed: np.ndarray, entry, round_m: float = 0.
     for box in ndimage.find_objects(regions):
         box = tuple(slice(max(b.start - pad, 0), min(b.stop + pad, n)) for b, n in zip(box, removed.shape))
         sub = removed[box]
-        sdf_removed = np.where(sub, -np.maximum(ndimage.distance_transform_edt(sub) - 0.5, 0.0),
-                               np.maximum(ndimage.distance_transform_edt(~sub) - 0.5, 0.0)) * h
+        sdf_removed = (
+            np.where(
+                sub,
+                -np.maximum(ndimage.distance_transform_edt(sub) - 0.5, 0.0),
+                np.maximum(ndimage.distance_transform_edt(~sub) - 0.5, 0.0),
+            )
+            * h
+        )
         cut = np.maximum(values[box], -sdf_removed)
         if round_m > 0:
             near = np.abs(sdf_removed) < 3 * round_m
@@ -112,7 +117,7 @@ def crop_to_paths(grid: SDFGrid, paths: Sequence[np.ndarray], entry, margin_m: f
         kept = ndimage.binary_dilation(kept, ndimage.generate_binary_structure(3, 3))
     for axis in range(3):
         kept = np.repeat(kept, stride, axis=axis)
-    kept = kept[:inside.shape[0], :inside.shape[1], :inside.shape[2]]
+    kept = kept[: inside.shape[0], : inside.shape[1], : inside.shape[2]]
     cut = inside & ~kept
     del kept
     if not cut.any():
@@ -121,9 +126,11 @@ def crop_to_paths(grid: SDFGrid, paths: Sequence[np.ndarray], entry, margin_m: f
     volume_mm3 = float(cut.sum()) * (grid.spacing * 1e3) ** 3
     share = float(cut.sum()) / float(inside.sum())
     cropped = remove_region(grid, cut, entry, round_m=CAP_ROUNDING_M)
-    return cropped, [f"cropped {regions} region{'s' * (regions > 1)} more than {margin_m * 1e3:.0f} mm from every "
-                     f"entry-to-site path ({volume_mm3 / 1e3:.1f} cm^3, {100 * share:.0f}% of the lumen; crop=none "
-                     f"keeps them)"]
+    return cropped, [
+        f"cropped {regions} region{'s' * (regions > 1)} more than {margin_m * 1e3:.0f} mm from every "
+        f"entry-to-site path ({volume_mm3 / 1e3:.1f} cm^3, {100 * share:.0f}% of the lumen; crop=none "
+        f"keeps them)"
+    ]
 
 
 def distance_to_paths_m(paths: Sequence[np.ndarray], point) -> float:

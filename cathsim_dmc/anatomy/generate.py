@@ -31,8 +31,13 @@ import numpy as np
 
 from cathsim_dmc.anatomy.arch import build_arch
 from cathsim_dmc.anatomy.asset import FORMAT_VERSION, META_FILE, params_record
-from cathsim_dmc.anatomy.parameters import (ARCH_TYPE_ELONGATION, ARCH_TYPE_RATIO_RANGE, ARCH_TYPES, ArchParams,
-                                            normalize_arch_type)
+from cathsim_dmc.anatomy.parameters import (
+    ARCH_TYPE_ELONGATION,
+    ARCH_TYPE_RATIO_RANGE,
+    ARCH_TYPES,
+    ArchParams,
+    normalize_arch_type,
+)
 from cathsim_dmc.anatomy.presets import PRESETS
 
 # Bump when the pipeline's output for the same parameters changes (invalidates caches),
@@ -41,9 +46,16 @@ from cathsim_dmc.anatomy.presets import PRESETS
 GENERATOR_VERSION = 2
 CACHE_ENV = "CATHSIM_DMC_CACHE"
 
-_DIAMETER_FIELDS = ("ascending_diameter_m", "proximal_arch_diameter_m", "distal_arch_diameter_m",
-                    "isthmus_diameter_m", "descending_diameter_m", "bca_diameter_m", "lcca_diameter_m",
-                    "lsa_diameter_m")
+_DIAMETER_FIELDS = (
+    "ascending_diameter_m",
+    "proximal_arch_diameter_m",
+    "distal_arch_diameter_m",
+    "isthmus_diameter_m",
+    "descending_diameter_m",
+    "bca_diameter_m",
+    "lcca_diameter_m",
+    "lsa_diameter_m",
+)
 
 
 def arch_params(params: Union[ArchParams, Mapping, str]) -> ArchParams:
@@ -101,8 +113,11 @@ def arch_params(params: Union[ArchParams, Mapping, str]) -> ArchParams:
 
 def params_hash(params: ArchParams) -> str:
     """Stable 16-hex-digit hash of every parameter (plus the format and generator versions)."""
-    payload = json.dumps({"params": params_record(params), "format_version": FORMAT_VERSION,
-                          "generator_version": GENERATOR_VERSION}, sort_keys=True, allow_nan=False)
+    payload = json.dumps(
+        {"params": params_record(params), "format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION},
+        sort_keys=True,
+        allow_nan=False,
+    )
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -160,13 +175,18 @@ def _rng_int(rng, hi):
     return int(rng.integers(0, hi)) if isinstance(rng, np.random.Generator) else int(rng.randint(0, hi))
 
 
-def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] = "type1", *,
-                       arch_types: Sequence[str] = ARCH_TYPES, type_weights: Optional[Sequence[float]] = None,
-                       size_scale: Tuple[float, float] = (0.85, 1.15),
-                       diameter_scale: Tuple[float, float] = (0.85, 1.15),
-                       obliquity_deg: Optional[Tuple[float, float]] = None,
-                       obliquity_range_deg: Tuple[float, float] = (12.0, 68.0),
-                       name: str = "sampled") -> ArchParams:
+def sample_arch_params(
+    random_state=None,
+    base: Union[ArchParams, Mapping, str] = "type1",
+    *,
+    arch_types: Sequence[str] = ARCH_TYPES,
+    type_weights: Optional[Sequence[float]] = None,
+    size_scale: Tuple[float, float] = (0.85, 1.15),
+    diameter_scale: Tuple[float, float] = (0.85, 1.15),
+    obliquity_deg: Optional[Tuple[float, float]] = None,
+    obliquity_range_deg: Tuple[float, float] = (12.0, 68.0),
+    name: str = "sampled",
+) -> ArchParams:
     """Draw a random arch around `base` (default: the type1 preset).
 
     The distribution, drawn in this order from `random_state` (an int seed, a
@@ -196,8 +216,11 @@ def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] 
 
     Every other field (aneurysm, bovine, tortuosity, meshing) is the base's.
     """
-    rng = random_state if isinstance(random_state, (np.random.Generator, np.random.RandomState)) \
+    rng = (
+        random_state
+        if isinstance(random_state, (np.random.Generator, np.random.RandomState))
         else np.random.default_rng(random_state)
+    )
     b = arch_params(base)
     types = [normalize_arch_type(t) for t in arch_types]
     if not types:
@@ -213,23 +236,30 @@ def sample_arch_params(random_state=None, base: Union[ArchParams, Mapping, str] 
     width_scale = _rng_uniform(rng, *size_scale)
     height_scale = _rng_uniform(rng, *size_scale)
     d_scale = _rng_uniform(rng, *diameter_scale)
-    seed = _rng_int(rng, 2 ** 31 - 1)
+    seed = _rng_int(rng, 2**31 - 1)
     # Lengths are rounded to 0.1 um so that they survive the asset's JSON exactly.
     um = lambda x: round(float(x), 7)
     changes = {f: um(getattr(b, f) * d_scale) for f in _DIAMETER_FIELDS}
     if b.aneurysm_diameter_m > 0:
         changes["aneurysm_diameter_m"] = um(b.aneurysm_diameter_m * d_scale)
     elongation = ARCH_TYPE_ELONGATION[arch_type] / ARCH_TYPE_ELONGATION[b.arch_type]
-    out = b.replace(name=name, arch_type=arch_type, seed=seed,
-                    bca_origin_drop_m=um(ratio * changes["lcca_diameter_m"]),
-                    arch_width_m=um(b.arch_width_m * width_scale),
-                    arch_height_m=um(b.arch_height_m * height_scale * elongation), **changes)
+    out = b.replace(
+        name=name,
+        arch_type=arch_type,
+        seed=seed,
+        bca_origin_drop_m=um(ratio * changes["lcca_diameter_m"]),
+        arch_width_m=um(b.arch_width_m * width_scale),
+        arch_height_m=um(b.arch_height_m * height_scale * elongation),
+        **changes,
+    )
     if obliquity_deg is not None:
         mean, sd = (float(v) for v in obliquity_deg)
         lo, hi = (float(v) for v in obliquity_range_deg)
         if not (sd >= 0 and -90 < lo <= hi < 90):
-            raise ValueError(f"obliquity_deg={obliquity_deg!r} needs sd >= 0 and obliquity_range_deg="
-                             f"{obliquity_range_deg!r} a (low, high) range within (-90, 90)")
+            raise ValueError(
+                f"obliquity_deg={obliquity_deg!r} needs sd >= 0 and obliquity_range_deg="
+                f"{obliquity_range_deg!r} a (low, high) range within (-90, 90)"
+            )
         target = float(np.clip(rng.normal(mean, sd), lo, hi))
         unturned = build_arch(out.replace(arch_rotation_deg=0.0)).obliquity_deg
         out = out.replace(arch_rotation_deg=round(target - unturned, 3))

@@ -73,25 +73,30 @@ from cathsim_dmc.anatomy.mesh_repair import detect_units, read_lumen, repair_lum
 from cathsim_dmc.anatomy.open_end import build_open_lumen, triangle_stats
 from cathsim_dmc.anatomy.polyline import polyline_length, resample_polyline
 from cathsim_dmc.anatomy.sdf import signed_distance, unsigned_distance
-from cathsim_dmc.anatomy.validate import (PROBE_RADIUS_M, ValidationReport, ostia_from_centerlines,
-                                          site_placement_problems, validate_asset)
+from cathsim_dmc.anatomy.validate import (
+    PROBE_RADIUS_M,
+    ValidationReport,
+    ostia_from_centerlines,
+    site_placement_problems,
+    validate_asset,
+)
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 from cathsim_dmc.anatomy.wall import extrude_prisms
 
 MIN_SITE_DEPTH_M = 0.001
-DEFAULT_EDGE_M = 0.004            # level-set edge of the generator: mean edges come out ~2.3 mm
+DEFAULT_EDGE_M = 0.004  # level-set edge of the generator: mean edges come out ~2.3 mm
 MAX_KEPT_TRIANGLES = 40_000
 REPAIR_MODES = ("auto", "surface", "volume")
-AUTO_SURFACE_MAX_TRIANGLES = 100_000   # repair=auto rebuilds larger surfaces through the volume
-VOLUME_GRID_NODES = 10_000_000     # the voxel volume's default spacing aims at this many nodes
+AUTO_SURFACE_MAX_TRIANGLES = 100_000  # repair=auto rebuilds larger surfaces through the volume
+VOLUME_GRID_NODES = 10_000_000  # the voxel volume's default spacing aims at this many nodes
 FOLD_RETRY_EDGE_FACTOR = 0.85
 CROP_MODES = ("auto", "none")
-DEFAULT_CROP_MARGIN_M = 0.02       # kept around the paths and past each site, through the lumen
+DEFAULT_CROP_MARGIN_M = 0.02  # kept around the paths and past each site, through the lumen
 # The fold remedies, in order, after a remesh at shorter edges: the volume smoothed around the
 # fold over these sigmas (m, at least these many grid nodes) within these radii (m).
 FOLD_SMOOTHING = ((0.001, 2, 0.012), (0.002, 4, 0.016))
-FOLD_CROP_CLEARANCE_M = 0.004      # a fold this far beyond a tighter crop's margin is cut away
-MAX_EXTENT_M = 1.5                 # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
+FOLD_CROP_CLEARANCE_M = 0.004  # a fold this far beyond a tighter crop's margin is cut away
+MAX_EXTENT_M = 1.5  # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
 
 
 @dataclasses.dataclass
@@ -110,9 +115,8 @@ class ImportReport:
     validation: Optional[ValidationReport] = None
 
 
-
-TERRACE_FOLD_DEG = 60.0            # an edge folding this much is a step of a voxel staircase...
-TERRACE_SHARE = 0.10               # ...when this share of all edges fold that much
+TERRACE_FOLD_DEG = 60.0  # an edge folding this much is a step of a voxel staircase...
+TERRACE_SHARE = 0.10  # ...when this share of all edges fold that much
 
 
 def terrace_step_m(v: np.ndarray, f: np.ndarray) -> Optional[float]:
@@ -139,15 +143,33 @@ def _vec(value, what) -> np.ndarray:
     return a
 
 
-def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: Sequence[float],
-                entry_direction: Optional[Sequence[float]] = None, units: str = "auto", name: Optional[str] = None,
-                wall_thickness_m: float = 0.002, edge_length_m: Optional[float] = None, remesh="auto",
-                sdf_spacing_m: Optional[float] = None, open_end_depth_m: float = 0.005, validate: bool = True,
-                validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
-                overwrite: bool = False, repair: str = "auto", smooth_m: Optional[float] = None,
-                close_gap_m: float = 0.002, trim_branches_m: float = 0.003, crop: str = "auto",
-                crop_margin_m: float = DEFAULT_CROP_MARGIN_M, caps: Sequence = (), log: Callable[[str], None] = print,
-                _started: Optional[float] = None) -> ImportReport:
+def import_mesh(
+    mesh_path,
+    out,
+    *,
+    sites: Mapping[str, Sequence[float]],
+    entry: Sequence[float],
+    entry_direction: Optional[Sequence[float]] = None,
+    units: str = "auto",
+    name: Optional[str] = None,
+    wall_thickness_m: float = 0.002,
+    edge_length_m: Optional[float] = None,
+    remesh="auto",
+    sdf_spacing_m: Optional[float] = None,
+    open_end_depth_m: float = 0.005,
+    validate: bool = True,
+    validator: Callable[[pathlib.Path], ValidationReport] = validate_asset,
+    overwrite: bool = False,
+    repair: str = "auto",
+    smooth_m: Optional[float] = None,
+    close_gap_m: float = 0.002,
+    trim_branches_m: float = 0.003,
+    crop: str = "auto",
+    crop_margin_m: float = DEFAULT_CROP_MARGIN_M,
+    caps: Sequence = (),
+    log: Callable[[str], None] = print,
+    _started: Optional[float] = None,
+) -> ImportReport:
     """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
     t0 = time.perf_counter() if _started is None else _started
     path = pathlib.Path(mesh_path)
@@ -188,8 +210,10 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         log(f"note: {n_}")
     extent_m = float(np.max(np.ptp(v, axis=0))) * scale
     if extent_m > MAX_EXTENT_M:
-        raise MeshImportError(f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
-                              f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh")
+        raise MeshImportError(
+            f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
+            f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh"
+        )
     entry_m = entry_in * scale
     sites_m = {k: p * scale for k, p in sites_in.items()}
     labels = ["entry"] + [f"sites.{k}" for k in sites_m]
@@ -200,9 +224,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
             need = PROBE_RADIUS_M if lab == "entry" else MIN_SITE_DEPTH_M
             if d < need:
                 where = "outside the lumen" if d <= 0 else "inside the lumen but too close to the wall"
-                raise MeshImportError(f"{path}: {lab}={format_point(p, digits=4 if units_used == 'm' else 1)} "
-                                      f"{units_used} is {where} ({d * 1e3:+.2f} mm from the wall; needs >= "
-                                      f"{need * 1e3:.2f} mm inside)")
+                raise MeshImportError(
+                    f"{path}: {lab}={format_point(p, digits=4 if units_used == 'm' else 1)} "
+                    f"{units_used} is {where} ({d * 1e3:+.2f} mm from the wall; needs >= "
+                    f"{need * 1e3:.2f} mm inside)"
+                )
 
     use_volume = repair == "volume"
     repairs: List[str] = []
@@ -223,19 +249,22 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
             if repair == "surface":
                 raise
             reason = str(exc).split(": ", 1)[-1]
-            notes.append(f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume "
-                         f"(repair=volume)")
+            notes.append(
+                f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume (repair=volume)"
+            )
             log(f"note: {notes[-1]}")
             use_volume = True
         else:
             if repair == "auto" and len(f_closed) > AUTO_SURFACE_MAX_TRIANGLES:
                 # A segmentation export: exact distances to every triangle cost minutes, and its
                 # noise folds the remeshed surface; the volume smooths it.
-                notes.append(f"{len(f_closed)} triangles: rebuilding the lumen from a voxel volume "
-                             f"(repair=surface keeps to the surface as given)")
+                notes.append(
+                    f"{len(f_closed)} triangles: rebuilding the lumen from a voxel volume "
+                    f"(repair=surface keeps to the surface as given)"
+                )
                 log(f"note: {notes[-1]}")
                 use_volume = True
-                repairs = []          # made to the surface, which the volume does not use
+                repairs = []  # made to the surface, which the volume does not use
             else:
                 v, f = v_closed, f_closed
     points = np.concatenate([[entry_m], list(sites_m.values())])
@@ -248,8 +277,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
         edge = float(edge_length_m) if edge_length_m else DEFAULT_EDGE_M
         box = np.ptp(v, axis=0) + 2 * (3 * edge)
-        h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(np.cbrt(np.prod(box) / VOLUME_GRID_NODES),
-                                                                     0.0004, 0.001))
+        h = (
+            float(sdf_spacing_m)
+            if sdf_spacing_m
+            else float(np.clip(np.cbrt(np.prod(box) / VOLUME_GRID_NODES), 0.0004, 0.001))
+        )
         pad = 3 * edge + 2 * h
         check_grid_memory(v, f, h, pad, path)
         smooth = h if smooth_m is None else float(smooth_m)
@@ -291,8 +323,7 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     for k, p in centerlines.items():
         dense = resample_polyline(p, 0.0005)
         profiles[k] = (dense, np.maximum(-grid(dense), 0.0))
-    placement = site_placement_problems(profiles,
-                                        label=lambda k: f"sites.{k}={format_point(sites_in[k])} {units_used}")
+    placement = site_placement_problems(profiles, label=lambda k: f"sites.{k}={format_point(sites_in[k])} {units_used}")
     if placement:
         raise MeshImportError(f"{path}: {placement[0]}")
     if dir_in is None:
@@ -320,20 +351,24 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
         if cropped:
             reasons.append("cropped")
         do_remesh = bool(reasons)
-        msg = ("remeshing (" + "; ".join(reasons) + ")") if reasons else \
-            f"keeping the {len(f)} triangles (mean edge {mean_edge * 1e3:.2f} mm, min angle {min_angle:.1f} deg)"
+        msg = (
+            ("remeshing (" + "; ".join(reasons) + ")")
+            if reasons
+            else f"keeping the {len(f)} triangles (mean edge {mean_edge * 1e3:.2f} mm, min angle {min_angle:.1f} deg)"
+        )
         notes.append(msg)
         log(f"note: {msg}")
     else:
-        do_remesh = bool(remesh) or cropped   # the surface as given still holds what the crop cut away
+        do_remesh = bool(remesh) or cropped  # the surface as given still holds what the crop cut away
     # A fold the local repair leaves: the remedies, in order, until one works or none is left.
     tried: List[str] = []
     smoothing = list(FOLD_SMOOTHING)
     shortened = False
     while True:
         try:
-            lumen, open_end = build_open_lumen(v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge,
-                                               depth=open_end_depth_m, path=path)
+            lumen, open_end = build_open_lumen(
+                v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge, depth=open_end_depth_m, path=path
+            )
             break
         except FoldedSurfaceError as exc:
             where = format_point(exc.where, 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4)
@@ -346,15 +381,36 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                 edge *= FOLD_RETRY_EDGE_FACTOR
                 remedy = f"remeshed at {edge * 1e3:.2f} mm edges"
             elif not use_volume and repair == "auto":
-                log(f"note: the remeshed surface folds over at {where} {units_used}; rebuilding the lumen from a "
-                    f"voxel volume (repair=volume)")
-                return import_mesh(mesh_path, out, sites=sites, entry=entry, entry_direction=entry_direction,
-                                   units=units, name=name, wall_thickness_m=wall_thickness_m,
-                                   edge_length_m=edge_length_m, remesh=remesh, sdf_spacing_m=sdf_spacing_m,
-                                   open_end_depth_m=open_end_depth_m, validate=validate, validator=validator,
-                                   overwrite=overwrite, repair="volume", smooth_m=smooth_m,
-                                   close_gap_m=close_gap_m, trim_branches_m=trim_branches_m, crop=crop,
-                                   crop_margin_m=crop_margin_m, caps=caps, log=log, _started=t0)
+                log(
+                    f"note: the remeshed surface folds over at {where} {units_used}; rebuilding the lumen from a "
+                    f"voxel volume (repair=volume)"
+                )
+                return import_mesh(
+                    mesh_path,
+                    out,
+                    sites=sites,
+                    entry=entry,
+                    entry_direction=entry_direction,
+                    units=units,
+                    name=name,
+                    wall_thickness_m=wall_thickness_m,
+                    edge_length_m=edge_length_m,
+                    remesh=remesh,
+                    sdf_spacing_m=sdf_spacing_m,
+                    open_end_depth_m=open_end_depth_m,
+                    validate=validate,
+                    validator=validator,
+                    overwrite=overwrite,
+                    repair="volume",
+                    smooth_m=smooth_m,
+                    close_gap_m=close_gap_m,
+                    trim_branches_m=trim_branches_m,
+                    crop=crop,
+                    crop_margin_m=crop_margin_m,
+                    caps=caps,
+                    log=log,
+                    _started=t0,
+                )
             elif smoothing:
                 sigma, nodes, radius = smoothing.pop(0)
                 sigma = max(sigma, nodes * grid.spacing)
@@ -367,10 +423,11 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
                     remedy = cnotes[0].replace("cropped", "cut away", 1)
             if remedy is None:
                 done = f" (tried: {'; '.join(tried)})" if tried else ""
-                raise MeshImportError(f"{path}: the lumen surface folds over at {where} {units_used}, "
-                                      f"{away * 1e3:.0f} mm from the nearest entry-to-site path, and no remedy undid "
-                                      f"it{done}; the mesh needs repair there (docs/anatomy.md#your-own-vessel)"
-                                      ) from None
+                raise MeshImportError(
+                    f"{path}: the lumen surface folds over at {where} {units_used}, "
+                    f"{away * 1e3:.0f} mm from the nearest entry-to-site path, and no remedy undid "
+                    f"it{done}; the mesh needs repair there (docs/anatomy.md#your-own-vessel)"
+                ) from None
             tried.append(remedy)
             notes.append(f"a fold at {where} {units_used} survived local repair: {remedy}")
             log(f"note: {notes[-1]}")
@@ -380,31 +437,57 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     lengths = {k: polyline_length(p) for k, p in centerlines.items()}
     ostia = ostia_from_centerlines(cl)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    params = {"source": path.name, "source_sha256": digest, "units": units_used,
-              "entry": json_rounded(entry_in), "entry_direction": None if dir_in is None else json_rounded(dir_in),
-              "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
-              "wall_thickness_m": wall_thickness_m, "edge_length_m": edge, "sdf_spacing_m": h,
-              "remesh": do_remesh, "open_end_depth_m": open_end_depth_m, "crop": crop,
-              "crop_margin_m": crop_margin_m,
-              "repair": "volume" if use_volume else "surface"}
-    description = (f"Imported lumen surface {path.name} ({units_used}); "
-                   f"{'remeshed' if do_remesh else 'triangles kept'}; wall: one "
-                   f"{wall_thickness_m * 1e3:g} mm prism per lumen triangle; repairs: "
-                   f"{'; '.join(repairs) if repairs else 'none'}.")
+    params = {
+        "source": path.name,
+        "source_sha256": digest,
+        "units": units_used,
+        "entry": json_rounded(entry_in),
+        "entry_direction": None if dir_in is None else json_rounded(dir_in),
+        "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
+        "wall_thickness_m": wall_thickness_m,
+        "edge_length_m": edge,
+        "sdf_spacing_m": h,
+        "remesh": do_remesh,
+        "open_end_depth_m": open_end_depth_m,
+        "crop": crop,
+        "crop_margin_m": crop_margin_m,
+        "repair": "volume" if use_volume else "surface",
+    }
+    description = (
+        f"Imported lumen surface {path.name} ({units_used}); "
+        f"{'remeshed' if do_remesh else 'triangles kept'}; wall: one "
+        f"{wall_thickness_m * 1e3:g} mm prism per lumen triangle; repairs: "
+        f"{'; '.join(repairs) if repairs else 'none'}."
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
-        write_asset(tmp, name=name, description=description, vertices=lumen.vertices, faces=lumen.faces,
-                    hulls=prisms, sites=sites_m, entry_position=entry_m, entry_direction=direction,
-                    centerlines=cl, wall_thickness_m=wall_thickness_m, params=params,
-                    extra={"open_end": open_end,
-                           "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
-                           "ostia": {k: json_rounded(p) for k, p in sorted(ostia.items())},
-                           "import": {"repairs": repairs, "notes": notes}})
+        write_asset(
+            tmp,
+            name=name,
+            description=description,
+            vertices=lumen.vertices,
+            faces=lumen.faces,
+            hulls=prisms,
+            sites=sites_m,
+            entry_position=entry_m,
+            entry_direction=direction,
+            centerlines=cl,
+            wall_thickness_m=wall_thickness_m,
+            params=params,
+            extra={
+                "open_end": open_end,
+                "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
+                "ostia": {k: json_rounded(p) for k, p in sorted(ostia.items())},
+                "import": {"repairs": repairs, "notes": notes},
+            },
+        )
         report = validator(tmp) if validate else None
         if report is not None and not report.ok:
-            raise MeshImportError(f"{path}: the imported asset fails validation: {report.problems[0]}"
-                                  f"{f' (and {len(report.problems) - 1} more)' if len(report.problems) > 1 else ''}")
+            raise MeshImportError(
+                f"{path}: the imported asset fails validation: {report.problems[0]}"
+                f"{f' (and {len(report.problems) - 1} more)' if len(report.problems) > 1 else ''}"
+            )
         if out.exists():
             shutil.rmtree(out)
         tmp.chmod(0o755)
@@ -412,7 +495,17 @@ def import_mesh(mesh_path, out, *, sites: Mapping[str, Sequence[float]], entry: 
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    return ImportReport(path=out, name=name, units=units_used, triangles=int(len(lumen.faces)),
-                        hulls=int(len(prisms)), remeshed=do_remesh, repairs=repairs, notes=notes,
-                        entry_direction=direction, path_length_m=lengths, seconds=time.perf_counter() - t0,
-                        validation=report)
+    return ImportReport(
+        path=out,
+        name=name,
+        units=units_used,
+        triangles=int(len(lumen.faces)),
+        hulls=int(len(prisms)),
+        remeshed=do_remesh,
+        repairs=repairs,
+        notes=notes,
+        entry_direction=direction,
+        path_length_m=lengths,
+        seconds=time.perf_counter() - t0,
+        validation=report,
+    )

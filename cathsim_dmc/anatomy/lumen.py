@@ -31,8 +31,13 @@ import numpy as np
 from scipy import spatial
 
 from cathsim_dmc.anatomy.arch import ArchModel
-from cathsim_dmc.anatomy.remesh import (level_set_surface, manifold_arrays, refine_creases, refine_sagging,
-                                        relax_on_surface)
+from cathsim_dmc.anatomy.remesh import (
+    level_set_surface,
+    manifold_arrays,
+    refine_creases,
+    refine_sagging,
+    relax_on_surface,
+)
 from cathsim_dmc.anatomy.rim import clean_rim, close_cap
 from cathsim_dmc.anatomy.sdf import SDFGrid, arch_sdf_grid
 from cathsim_dmc.anatomy.surface_cleanup import SHORT_EDGE_FRACTION, collapse_short_edges, fix_slivers, folded_faces
@@ -41,10 +46,10 @@ from cathsim_dmc.anatomy.triangles import canonical_order, drop_unused_vertices,
 
 @dataclasses.dataclass(frozen=True)
 class Lumen:
-    vertices: np.ndarray     # (V, 3) float64, metres
-    faces: np.ndarray        # (F, 3) int64, counter-clockwise seen from outside
-    cap: np.ndarray          # (F,) bool: triangle lies on the open-end cut plane
-    normals: np.ndarray      # (V, 3) unit outward vertex normals (cap faces excluded)
+    vertices: np.ndarray  # (V, 3) float64, metres
+    faces: np.ndarray  # (F, 3) int64, counter-clockwise seen from outside
+    cap: np.ndarray  # (F,) bool: triangle lies on the open-end cut plane
+    normals: np.ndarray  # (V, 3) unit outward vertex normals (cap faces excluded)
 
 
 def rim_vertices(faces: np.ndarray, cap: np.ndarray) -> np.ndarray:
@@ -83,9 +88,11 @@ def check_lumen_surface(v, f, cap, grid: SDFGrid):
     bad = folded_faces(v, wall, grid)
     if len(bad):
         where = v[wall[bad[0]]].mean(axis=0)
-        raise FoldedSurfaceError(f"Lumen surface has {len(bad)} folded triangle{'s' * (len(bad) > 1)}, the first at "
-                                 f"[{', '.join(f'{x * 1e3:.1f}' for x in where)}] mm; try another edge_length_m.",
-                                 where=where)
+        raise FoldedSurfaceError(
+            f"Lumen surface has {len(bad)} folded triangle{'s' * (len(bad) > 1)}, the first at "
+            f"[{', '.join(f'{x * 1e3:.1f}' for x in where)}] mm; try another edge_length_m.",
+            where=where,
+        )
 
 
 # A coarse mesh can fold a triangle where the lumen curves tightly (seen at 6-8 mm
@@ -137,7 +144,7 @@ def _build_lumen(model: ArchModel, grid: SDFGrid, edge: float, mesher_version: i
     shape = np.array(grid.values.shape)
     lo = grid.origin + grid.spacing
     hi = grid.origin + grid.spacing * (shape - 2)
-    fixed = mesher_version >= 2   # the pinched-branch fix (module docstring)
+    fixed = mesher_version >= 2  # the pinched-branch fix (module docstring)
     man = level_set_surface(grid, lo, hi, edge, tolerance_m=LEVEL_SET_TOLERANCE * grid.spacing if fixed else None)
     # Open inferior end: cut square to the descending aorta (which runs along +y
     # there) at the open-end plane; the part above is kept and capped flat.

@@ -17,7 +17,7 @@ MAX_GRID_NODES = 30_000_000
 # peaked at 1.8 GB.
 GRID_BYTES_PER_NODE = 100
 GRID_BYTES_PER_LUMEN_NODE = 300
-MEMORY_FRACTION = 0.7              # of MemAvailable the import may plan to use
+MEMORY_FRACTION = 0.7  # of MemAvailable the import may plan to use
 
 
 def grid_shape(v, spacing: float, pad: float) -> "tuple[np.ndarray, np.ndarray]":
@@ -36,13 +36,15 @@ def check_grid_memory(v, f, spacing: float, pad: float, path, available_bytes: O
     nodes = float(np.prod(n.astype(float)))
     tri = v[f]
     volume = abs(float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0)
-    need = GRID_BYTES_PER_NODE * nodes + GRID_BYTES_PER_LUMEN_NODE * volume / spacing ** 3
+    need = GRID_BYTES_PER_NODE * nodes + GRID_BYTES_PER_LUMEN_NODE * volume / spacing**3
     have = available_memory_bytes() if available_bytes is None else int(available_bytes)
     if need > MEMORY_FRACTION * have:
         enough = spacing * (need / (MEMORY_FRACTION * have)) ** (1 / 3)
-        raise MeshImportError(f"{path}: a {n[0]}x{n[1]}x{n[2]} grid at sdf_mm={spacing * 1e3:.2f} needs about "
-                              f"{need / 2**30:.1f} GiB, {have / 2**30:.1f} GiB available; pass sdf_mm="
-                              f"{np.ceil(enough * 1e4) / 10:.1f} or more")
+        raise MeshImportError(
+            f"{path}: a {n[0]}x{n[1]}x{n[2]} grid at sdf_mm={spacing * 1e3:.2f} needs about "
+            f"{need / 2**30:.1f} GiB, {have / 2**30:.1f} GiB available; pass sdf_mm="
+            f"{np.ceil(enough * 1e4) / 10:.1f} or more"
+        )
     return int(need)
 
 
@@ -58,18 +60,27 @@ def mesh_sdf_grid(v, f, spacing: float, pad: float) -> SDFGrid:
     h = float(spacing)
     lo, n = grid_shape(v, h, pad)
     if int(np.prod(n)) > MAX_GRID_NODES:
-        raise MeshImportError(f"the mesh needs a {n[0]}x{n[1]}x{n[2]} grid at {h * 1e3:.2f} mm; "
-                              f"pass a larger sdf_mm")
+        raise MeshImportError(f"the mesh needs a {n[0]}x{n[1]}x{n[2]} grid at {h * 1e3:.2f} mm; pass a larger sdf_mm")
     sv, _ = trimesh.remesh.subdivide_to_size(v, f, max_edge=0.5 * h)
     idx = np.clip(np.rint((sv - lo) / h).astype(int), 0, n - 1)
     band = np.zeros(tuple(n), dtype=bool)
     band[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     band = ndimage.binary_dilation(band, structure=np.ones((3, 3, 3), dtype=bool))
     nodes = np.argwhere(band)
-    sd_band = signed_distance(v, f, lo + h * nodes)           # + inside
+    sd_band = signed_distance(v, f, lo + h * nodes)  # + inside
     labels, _ = ndimage.label(~band)
-    border = np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
-                                       labels[:, -1].ravel(), labels[:, :, 0].ravel(), labels[:, :, -1].ravel()]))
+    border = np.unique(
+        np.concatenate(
+            [
+                labels[0].ravel(),
+                labels[-1].ravel(),
+                labels[:, 0].ravel(),
+                labels[:, -1].ravel(),
+                labels[:, :, 0].ravel(),
+                labels[:, :, -1].ravel(),
+            ]
+        )
+    )
     outside = np.isin(labels, border[border > 0])
     inside = ~band & ~outside
     inside[tuple(nodes[sd_band > 0].T)] = True

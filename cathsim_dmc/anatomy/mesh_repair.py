@@ -54,7 +54,7 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
         mesh.update_faces(keep)
     mesh.remove_unreferenced_vertices()
     merged = n_v - len(mesh.vertices)
-    if merged and path.suffix.lower() != ".stl":      # STL always repeats shared vertices
+    if merged and path.suffix.lower() != ".stl":  # STL always repeats shared vertices
         repairs.append(f"merged {merged} duplicate vertices")
     if len(mesh.faces) < 4:
         raise MeshImportError(f"{path}: has fewer than 4 usable triangles")
@@ -65,14 +65,16 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
         where = mesh.vertices[uniq_e[counts > 2][0, 0]]
         raise MeshImportError(
             f"{path}: non-manifold surface: {int(np.sum(counts > 2))} edges are shared by more than two "
-            f"triangles (first at {format_point(where, digits=3)} {units_label}); a lumen must be one closed surface")
+            f"triangles (first at {format_point(where, digits=3)} {units_label}); a lumen must be one closed surface"
+        )
     # Loose pieces: keep the largest (by area).
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
     if labels.max() > 0:
         area = np.bincount(labels, weights=mesh.area_faces)
         keep = labels == int(np.argmax(area))
-        repairs.append(f"dropped {int(labels.max())} loose pieces ({100 * (1 - area.max() / area.sum()):.1f}% of "
-                       f"the area)")
+        repairs.append(
+            f"dropped {int(labels.max())} loose pieces ({100 * (1 - area.max() / area.sum()):.1f}% of the area)"
+        )
         mesh.update_faces(keep)
         mesh.remove_unreferenced_vertices()
     # Holes: trimesh fills 3-4 edge holes; flat loops (vessel ends) get a fan cap.
@@ -99,18 +101,20 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
                 raise MeshImportError(
                     f"{path}: not watertight: a hole of {len(loop)} edges around {format_point(c, digits=3)} "
                     f"{units_label} is not a flat vessel end ({off / max(size, 1e-12) * 100:.0f}% out of plane); "
-                    f"cannot close it safely")
+                    f"cannot close it safely"
+                )
             ci = len(vv) + len(added)
             added.append(c)
             caps.append(fan_triangles(loop, ci))
-        mesh = trimesh.Trimesh(np.concatenate([vv, np.array(added)]), np.concatenate([ff] + caps),
-                               process=False)
+        mesh = trimesh.Trimesh(np.concatenate([vv, np.array(added)]), np.concatenate([ff] + caps), process=False)
         repairs.append(f"closed {len(loops)} flat open vessel end{'s' * (len(loops) > 1)}")
     if not mesh.is_winding_consistent:
         trimesh.repair.fix_winding(mesh)
         if not mesh.is_winding_consistent:
-            raise MeshImportError(f"{path}: triangle orientations are inconsistent and cannot be fixed "
-                                  f"(a one-sided or self-overlapping surface?)")
+            raise MeshImportError(
+                f"{path}: triangle orientations are inconsistent and cannot be fixed "
+                f"(a one-sided or self-overlapping surface?)"
+            )
         repairs.append("made the triangle winding consistent")
     if not mesh.is_watertight:
         raise MeshImportError(f"{path}: not watertight after repair")
@@ -132,8 +136,11 @@ def detect_units(v, units: str, path) -> "tuple[float, str, Optional[str]]":
     extent = float(np.max(np.ptp(v, axis=0)))
     if units == "auto":
         if extent > 2.0:
-            return 1e-3, "mm", (f"{path}: spans {extent:.1f} units, assuming millimetres "
-                                f"(pass units=m if it is in metres)")
+            return (
+                1e-3,
+                "mm",
+                (f"{path}: spans {extent:.1f} units, assuming millimetres (pass units=m if it is in metres)"),
+            )
         return 1.0, "m", f"{path}: spans {extent:.3f} units, assuming metres (pass units=mm if it is in millimetres)"
     if units not in ("mm", "m"):
         raise ValueError(f"units={units!r} is not valid; choose one of ['auto', 'mm', 'm']")

@@ -22,7 +22,7 @@ def _frame(direction):
     u = np.cross(d, helper)
     u /= np.linalg.norm(u)
     w = np.cross(u, d)
-    return np.stack([u, d, w])        # rows: local x, y (= direction), z
+    return np.stack([u, d, w])  # rows: local x, y (= direction), z
 
 
 def triangle_stats(v, f):
@@ -31,8 +31,9 @@ def triangle_stats(v, f):
     return q["edge_mean"], float(q["min_angle"].min())
 
 
-def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length: float, depth: float,
-                     path) -> "tuple[Lumen, dict]":
+def build_open_lumen(
+    v, f, grid, entry, direction, *, remesh: bool, edge_length: float, depth: float, path
+) -> "tuple[Lumen, dict]":
     """Closed lumen (remeshed or not), cut square to `direction` `depth` behind the entry, capped flat."""
     import manifold3d
     import trimesh
@@ -43,8 +44,9 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     hits, _, _ = tm.ray.intersects_location([entry], [-direction], multiple_hits=False)
     behind = float(np.linalg.norm(hits[0] - entry)) if len(hits) else 0.0
     if behind < 0.002:
-        raise MeshImportError(f"{path}: the entry is only {behind * 1e3:.1f} mm from the end of its vessel; "
-                              f"put it at least 2 mm inside")
+        raise MeshImportError(
+            f"{path}: the entry is only {behind * 1e3:.1f} mm from the end of its vessel; put it at least 2 mm inside"
+        )
     depth = min(depth, 0.5 * behind)
     p0 = entry - depth * direction
     # Cross-section at the cut: the loop around the entry axis sets the cutting cylinder's radius.
@@ -56,13 +58,14 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     r_loop = float(radial[own].max())
     r_cut = 1.25 * r_loop + 2 * grid.spacing
     if np.any(radial[~own] < r_cut):
-        raise MeshImportError(f"{path}: another vessel passes within {r_cut * 1e3:.1f} mm of the open end "
-                              f"behind the entry; choose an entry further inside the vessel")
+        raise MeshImportError(
+            f"{path}: another vessel passes within {r_cut * 1e3:.1f} mm of the open end "
+            f"behind the entry; choose an entry further inside the vessel"
+        )
 
     if remesh:
         shape = np.array(grid.values.shape)
-        man = level_set_surface(grid, grid.origin + grid.spacing, grid.origin + grid.spacing * (shape - 2),
-                                edge_length)
+        man = level_set_surface(grid, grid.origin + grid.spacing, grid.origin + grid.spacing * (shape - 2), edge_length)
     else:
         man = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v, tri_verts=f.astype(np.uint64)))
     length = float(np.max(np.ptp(v, axis=0))) + 0.1
@@ -98,11 +101,15 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     loc, ff = drop_unused_vertices(loc, ff)
     loops = boundary_loops(ff)
     if loops is None or len(loops) != 1:
-        raise MeshImportError(f"{path}: the open end behind the entry is not one simple rim "
-                              f"({0 if loops is None else len(loops)} loops); choose another entry")
+        raise MeshImportError(
+            f"{path}: the open end behind the entry is not one simple rim "
+            f"({0 if loops is None else len(loops)} loops); choose another entry"
+        )
     loc, ff = clean_rim(loc, ff, np.zeros(2), 0.0, edge, radius=r_cut + 3 * edge)
     vv = to_world(loc)
-    band = lambda x: (to_local(x)[:, 1] < 3 * edge) & (np.hypot(to_local(x)[:, 0], to_local(x)[:, 2]) < r_cut + 3 * edge)
+    band = lambda x: (
+        (to_local(x)[:, 1] < 3 * edge) & (np.hypot(to_local(x)[:, 0], to_local(x)[:, 2]) < r_cut + 3 * edge)
+    )
     if remesh:
         vv, ff = collapse_short_edges(vv, ff, grid, SHORT_EDGE_FRACTION * edge, frozen=band(vv))
         vv, ff = refine_creases(vv, ff, grid, 25.0, 1, -np.inf, frozen=band)
@@ -114,8 +121,10 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
     loc, ff = close_cap(loc, ff, 0.0)
     vv2, ff2 = canonical_order(to_world(loc), ff)
     loc2 = to_local(vv2)
-    cap2 = np.all((np.abs(loc2[ff2][:, :, 1]) < 1e-9)
-                  & (np.hypot(loc2[ff2][:, :, 0], loc2[ff2][:, :, 2]) < r_cut + 3 * edge), axis=1)
+    cap2 = np.all(
+        (np.abs(loc2[ff2][:, :, 1]) < 1e-9) & (np.hypot(loc2[ff2][:, :, 0], loc2[ff2][:, :, 2]) < r_cut + 3 * edge),
+        axis=1,
+    )
     normals = lumen_normals(vv2, ff2, cap2, direction)
     rim = rim_vertices(ff2, cap2)
     try:
@@ -124,8 +133,7 @@ def build_open_lumen(v, f, grid, entry, direction, *, remesh: bool, edge_length:
         raise
     except RuntimeError as exc:
         raise MeshImportError(f"{path}: {exc}") from None
-    radius = float(np.max(np.linalg.norm((vv2[rim] - p0) - np.outer((vv2[rim] - p0) @ direction, direction),
-                                         axis=1)))
+    radius = float(np.max(np.linalg.norm((vv2[rim] - p0) - np.outer((vv2[rim] - p0) @ direction, direction), axis=1)))
     open_end = {"center": json_rounded(p0), "normal": json_rounded(-direction), "radius_m": json_rounded(radius)}
     return Lumen(vertices=vv2, faces=ff2, cap=cap2, normals=normals), open_end
 

@@ -178,9 +178,12 @@ class ArchParams:
         return getattr(self, f"{branch}_angle_deg")
 
     def validate(self) -> None:
-        positive = [f.name for f in dataclasses.fields(self)
-                    if f.name.endswith("_m") and f.name not in (
-                        "tortuosity_amplitude_m", "aneurysm_diameter_m", "bovine_trunk_length_m")]
+        positive = [
+            f.name
+            for f in dataclasses.fields(self)
+            if f.name.endswith("_m")
+            and f.name not in ("tortuosity_amplitude_m", "aneurysm_diameter_m", "bovine_trunk_length_m")
+        ]
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"ArchParams.{name} must be > 0, got {getattr(self, name)!r}.")
@@ -189,12 +192,16 @@ class ArchParams:
         # exhaust memory before failing.
         for name in [f.name for f in dataclasses.fields(self) if f.name.endswith("_m")]:
             if not getattr(self, name) <= MAX_LENGTH_M:
-                raise ValueError(f"ArchParams.{name}={getattr(self, name)!r} m is larger than any aortic arch "
-                                 f"dimension; use at most {MAX_LENGTH_M} m (values are in metres).")
+                raise ValueError(
+                    f"ArchParams.{name}={getattr(self, name)!r} m is larger than any aortic arch "
+                    f"dimension; use at most {MAX_LENGTH_M} m (values are in metres)."
+                )
         if self.sdf_spacing_m < MIN_SDF_SPACING_M or self.edge_length_m < MIN_EDGE_LENGTH_M:
-            raise ValueError(f"ArchParams.sdf_spacing_m={self.sdf_spacing_m!r} and edge_length_m={self.edge_length_m!r} "
-                             f"must be at least {MIN_SDF_SPACING_M} and {MIN_EDGE_LENGTH_M} m (finer grids and "
-                             f"meshes take minutes to build and change no contact).")
+            raise ValueError(
+                f"ArchParams.sdf_spacing_m={self.sdf_spacing_m!r} and edge_length_m={self.edge_length_m!r} "
+                f"must be at least {MIN_SDF_SPACING_M} and {MIN_EDGE_LENGTH_M} m (finer grids and "
+                f"meshes take minutes to build and change no contact)."
+            )
         if self.site_depth_m >= min(self.branch_length_m(b) for b in BRANCHES):
             raise ValueError("ArchParams.site_depth_m must be shorter than every branch length.")
         # Narrow branches are refined by their fold angle (max_dihedral_deg) and, from mesher
@@ -202,8 +209,10 @@ class ArchParams:
         # edge only has to stay below the narrowest branch diameter.
         narrowest = min(self.branch_diameter_m(b) for b in BRANCHES)
         if self.edge_length_m > narrowest:
-            raise ValueError(f"ArchParams.edge_length_m={self.edge_length_m} is too coarse for a "
-                             f"{narrowest * 1e3:.1f} mm branch; use at most {narrowest:.4f}.")
+            raise ValueError(
+                f"ArchParams.edge_length_m={self.edge_length_m} is too coarse for a "
+                f"{narrowest * 1e3:.1f} mm branch; use at most {narrowest:.4f}."
+            )
         if self.refine_levels < 0 or self.relax_iterations < 0:
             raise ValueError("ArchParams.refine_levels and relax_iterations must be >= 0.")
         if self.bovine_trunk_length_m < 0:
@@ -246,8 +255,9 @@ def ostia_obliquity_deg(ostia) -> float:
     return float(math.degrees(math.atan2(-d[2], d[0])))
 
 
-def with_arch_type(params: "ArchParams", arch_type: str, ratio: float | None = None,
-                   name: str | None = None) -> "ArchParams":
+def with_arch_type(
+    params: "ArchParams", arch_type: str, ratio: float | None = None, name: str | None = None
+) -> "ArchParams":
     """`params` turned into an arch of `arch_type` ("I"/"II"/"III" or 1/2/3).
 
     The BCA origin is put `ratio` CCA (= LCCA) diameters below the arch top
@@ -259,12 +269,16 @@ def with_arch_type(params: "ArchParams", arch_type: str, ratio: float | None = N
     if arch_type_of(ratio) != arch_type:
         raise ValueError(f"ratio={ratio} CCA diameters is not an arch of type {arch_type}.")
     height = params.arch_height_m * ARCH_TYPE_ELONGATION[arch_type] / ARCH_TYPE_ELONGATION[params.arch_type]
-    return params.replace(name=params.name if name is None else name, arch_type=arch_type,
-                          bca_origin_drop_m=ratio * params.lcca_diameter_m, arch_height_m=height)
+    return params.replace(
+        name=params.name if name is None else name,
+        arch_type=arch_type,
+        bca_origin_drop_m=ratio * params.lcca_diameter_m,
+        arch_height_m=height,
+    )
 
 
 def normalize_arch_type(value) -> str:
-    """"I"/"II"/"III", 1/2/3 or "1"/"2"/"3" -> "I"/"II"/"III"."""
+    """ "I"/"II"/"III", 1/2/3 or "1"/"2"/"3" -> "I"/"II"/"III"."""
     names = {"1": "I", "2": "II", "3": "III", "I": "I", "II": "II", "III": "III"}
     key = str(value).strip().upper()
     if key not in names:

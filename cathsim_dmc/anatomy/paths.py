@@ -98,8 +98,9 @@ class CenterlineTree:
         of the deepest counts as a tie and the target's own line wins.
     """
 
-    def __init__(self, centerlines: Mapping[str, tuple], junction_tolerance_m: float = 1e-3,
-                 tie_tolerance_m: float = 0.5e-3):
+    def __init__(
+        self, centerlines: Mapping[str, tuple], junction_tolerance_m: float = 1e-3, tie_tolerance_m: float = 0.5e-3
+    ):
         self.lines = {name: CenterlinePath(points, radius) for name, (points, radius) in centerlines.items()}
         self._tie = float(tie_tolerance_m)
         # junction[(a, b)]: arc length along a where a leaves b.

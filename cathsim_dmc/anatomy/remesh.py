@@ -29,8 +29,9 @@ from cathsim_dmc.anatomy.surface_cleanup import faces_follow_surface, folded_fac
 from cathsim_dmc.anatomy.triangles import canonical_order, edge_faces, face_normals, unique_edges, vertex_normals
 
 
-def level_set_surface(grid: SDFGrid, lo: np.ndarray, hi: np.ndarray, edge_m: float,
-                      tolerance_m: float | None = None) -> manifold3d.Manifold:
+def level_set_surface(
+    grid: SDFGrid, lo: np.ndarray, hi: np.ndarray, edge_m: float, tolerance_m: float | None = None
+) -> manifold3d.Manifold:
     """Closed surface of the zero set of `grid` within the box `lo`-`hi`, meshed at `edge_m` edges.
 
     manifold3d samples the grid SDF (inside-positive) trilinearly, in Python.
@@ -43,7 +44,7 @@ def level_set_surface(grid: SDFGrid, lo: np.ndarray, hi: np.ndarray, edge_m: flo
     """
     vals = grid.values
     nx, ny, nz = vals.shape
-    flat = (-vals).ravel().tolist()          # level_set wants positive inside
+    flat = (-vals).ravel().tolist()  # level_set wants positive inside
     ox, oy, oz = (float(c) for c in grid.origin)
     inv = 1.0 / grid.spacing
     sy, sx = nz, ny * nz
@@ -75,8 +76,7 @@ def manifold_arrays(surface: manifold3d.Manifold):
     return canonical_order(v, f)
 
 
-def refine_creases(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_min: float,
-                   frozen=None):
+def refine_creases(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_min: float, frozen=None):
     """Split triangles around creases sharper than `max_dihedral_deg` (red-green refinement).
 
     Uniform meshing at ~3 mm leaves narrow branches with 8-9 facets and folds
@@ -102,8 +102,7 @@ def refine_creases(v, f, grid: SDFGrid, max_dihedral_deg: float, levels: int, y_
     return v, f
 
 
-def refine_sagging(v, f, grid: SDFGrid, local_radius, max_sag: float, levels: int, y_min: float,
-                   frozen=None):
+def refine_sagging(v, f, grid: SDFGrid, local_radius, max_sag: float, levels: int, y_min: float, frozen=None):
     """Split triangles that cut into the lumen by more than `max_sag` of its local radius.
 
     A flat triangle with its corners on the surface of a tube of radius r and
@@ -120,8 +119,15 @@ def refine_sagging(v, f, grid: SDFGrid, local_radius, max_sag: float, levels: in
     """
     for _ in range(levels):
         tri = v[f]
-        probes = np.stack([tri.mean(axis=1), 0.5 * (tri[:, 0] + tri[:, 1]), 0.5 * (tri[:, 1] + tri[:, 2]),
-                           0.5 * (tri[:, 2] + tri[:, 0])], axis=1).reshape(-1, 3)
+        probes = np.stack(
+            [
+                tri.mean(axis=1),
+                0.5 * (tri[:, 0] + tri[:, 1]),
+                0.5 * (tri[:, 1] + tri[:, 2]),
+                0.5 * (tri[:, 2] + tri[:, 0]),
+            ],
+            axis=1,
+        ).reshape(-1, 3)
         marked = np.any((-grid(probes) > max_sag * local_radius(probes)).reshape(-1, 4), axis=1)
         folded = folded_faces(v, f, grid)
         marked[folded] = False
@@ -138,7 +144,7 @@ def refine_sagging(v, f, grid: SDFGrid, local_radius, max_sag: float, levels: in
 def _unfrozen(v, f, marked, y_min, frozen):
     """`marked` without the faces below `y_min` or touching a `frozen` vertex."""
     marked = marked & (v[f].min(axis=1)[:, 1] > y_min)
-    if frozen is not None:        # callable: vertices -> bool mask of vertices to leave alone
+    if frozen is not None:  # callable: vertices -> bool mask of vertices to leave alone
         marked &= ~np.any(frozen(v)[f], axis=1)
     return marked
 
@@ -161,7 +167,7 @@ def split_faces(v, f, grid: SDFGrid, marked):
     mid_id[split] = len(v) + np.arange(split.sum())
     mids = grid.project_onto_surface(0.5 * (v[edges[split, 0]] + v[edges[split, 1]]))
     v = np.concatenate([v, mids])
-    m = mid_id[face_edges]            # (F, 3): midpoint of edge c (f[c] -> f[c+1]) or -1
+    m = mid_id[face_edges]  # (F, 3): midpoint of edge c (f[c] -> f[c+1]) or -1
     ns = (m >= 0).sum(axis=1)
     out = [f[ns == 0]]
     r = ns == 3
@@ -169,7 +175,7 @@ def split_faces(v, f, grid: SDFGrid, marked):
     mab, mbc, mca = m[r, 0], m[r, 1], m[r, 2]
     out += [np.stack(t, axis=1) for t in ((a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca))]
     g = ns == 1
-    k = np.argmax(m[g] >= 0, axis=1)            # which edge is split
+    k = np.argmax(m[g] >= 0, axis=1)  # which edge is split
     rows = np.nonzero(g)[0]
     p0 = f[rows, k]
     p1 = f[rows, (k + 1) % 3]
@@ -193,7 +199,7 @@ def relax_on_surface(v, f, grid: SDFGrid, frozen: np.ndarray, iterations: int = 
     move = ~frozen
     for it in range(iterations + 1):
         if it == 0:
-            target = v[move]            # first just project onto the surface
+            target = v[move]  # first just project onto the surface
         else:
             n = vertex_normals(v, f)
             centroid = np.stack([np.bincount(src, v[dst, k], minlength=len(v)) for k in range(3)], 1)
@@ -203,6 +209,6 @@ def relax_on_surface(v, f, grid: SDFGrid, frozen: np.ndarray, iterations: int = 
         candidate = v.copy()
         candidate[move] = grid.project_onto_surface(target)
         if not faces_follow_surface(candidate, f, grid):
-            break        # a triangle would fold: keep the last good state
+            break  # a triangle would fold: keep the last good state
         v = candidate
     return v

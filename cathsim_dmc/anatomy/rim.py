@@ -5,8 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.triangles import (boundary_edges, boundary_loops, drop_unused_vertices, face_normals,
-                                           fan_triangles, unique_edges)
+from cathsim_dmc.anatomy.triangles import (
+    boundary_edges,
+    boundary_loops,
+    drop_unused_vertices,
+    face_normals,
+    fan_triangles,
+    unique_edges,
+)
 
 
 def clean_rim(v, f, axis_xz, y_cut, edge, iterations=20, radius=None):
@@ -24,14 +30,14 @@ def clean_rim(v, f, axis_xz, y_cut, edge, iterations=20, radius=None):
     rim_e = boundary_edges(f)
     rim = np.unique(rim_e)
     in_reach = v[:, 1] < y_cut + 2.5 * edge
-    if radius is not None:      # only around the open end (imported meshes may reach below it elsewhere)
+    if radius is not None:  # only around the open end (imported meshes may reach below it elsewhere)
         in_reach &= np.hypot(v[:, 0] - axis_xz[0], v[:, 2] - axis_xz[1]) < radius
     band = np.nonzero(in_reach)[0]
     inner = np.setdiff1d(band, rim)
     e = unique_edges(f)
-    e = np.concatenate([e, e[:, ::-1]])           # both directions
+    e = np.concatenate([e, e[:, ::-1]])  # both directions
     e_in = e[np.isin(e[:, 0], inner)]
-    e_rim = np.concatenate([rim_e, rim_e[:, ::-1]])   # rim vertices: neighbours along the rim
+    e_rim = np.concatenate([rim_e, rim_e[:, ::-1]])  # rim vertices: neighbours along the rim
     dx, dz = v[:, 0] - axis_xz[0], v[:, 2] - axis_xz[1]
     rho = np.hypot(dx, dz)
     theta = np.arctan2(dz, dx)
@@ -68,7 +74,7 @@ def clean_rim(v, f, axis_xz, y_cut, edge, iterations=20, radius=None):
                 y[idx] += 0.5 * dy[idx] / deg[idx]
         candidate = place()
         if not facing_out(candidate):
-            break        # keep the last state that had no folded triangle
+            break  # keep the last state that had no folded triangle
         best = candidate
     return best, f
 
@@ -86,7 +92,7 @@ def _collapse_short_rim_edges(v, f, y_cut, tol):
             shared = has_a & has_b
             nb = lambda x: set(f[np.any(f == x, axis=1)].ravel().tolist()) - {x}
             if nb(a) & nb(b) != set(f[shared].ravel().tolist()) - {a, b}:
-                continue   # merging would pinch the surface
+                continue  # merging would pinch the surface
             v[a] = 0.5 * (v[a] + v[b])
             v[a, 1] = y_cut
             f = f[~shared]

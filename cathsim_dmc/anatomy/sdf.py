@@ -27,9 +27,9 @@ FAR_M = 1.0  # SDF value (m) used far from every vessel
 class SDFGrid:
     """Signed distance (positive OUTSIDE the lumen) on a regular grid."""
 
-    origin: np.ndarray   # (3,) position of values[0, 0, 0]
+    origin: np.ndarray  # (3,) position of values[0, 0, 0]
     spacing: float
-    values: np.ndarray   # (nx, ny, nz) float64
+    values: np.ndarray  # (nx, ny, nz) float64
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Trilinear interpolation at (N, 3) points (clamped to the grid)."""
@@ -62,7 +62,7 @@ class SDFGrid:
     def project_onto_surface(self, points: np.ndarray, iterations: int = 5) -> np.ndarray:
         """Newton steps from (N, 3) points onto the zero set."""
         x = np.array(points, dtype=np.float64)
-        max_step = 4.0 * self.spacing       # a flat patch of the field (tiny gradient) must not throw a point away
+        max_step = 4.0 * self.spacing  # a flat patch of the field (tiny gradient) must not throw a point away
         for _ in range(iterations):
             d = self(x)
             g = self.gradient(x)
@@ -96,8 +96,9 @@ def arch_sdf_grid(model: ArchModel) -> SDFGrid:
         d = np.full(tuple(n), FAR_M)
         vlo = np.min(v.points - v.radius[:, None], axis=0) - band
         vhi = np.max(v.points + v.radius[:, None], axis=0) + band
-        sl = tuple(slice(int(np.searchsorted(axes[k], vlo[k])),
-                         int(np.searchsorted(axes[k], vhi[k])) + 1) for k in range(3))
+        sl = tuple(
+            slice(int(np.searchsorted(axes[k], vlo[k])), int(np.searchsorted(axes[k], vhi[k])) + 1) for k in range(3)
+        )
         sub = np.stack(np.meshgrid(*[axes[k][sl[k]] for k in range(3)], indexing="ij"), -1)
         q = sub.reshape(-1, 3)
         tree = spatial.cKDTree(v.points)
@@ -147,7 +148,7 @@ def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray)
     fn = face_normals(vertices, faces)
     vn = vertex_normals(vertices, faces)
     # Edge c of a face is the one opposite its vertex c.
-    e = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1)   # (F, 3, 2)
+    e = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1)  # (F, 3, 2)
     e = np.sort(e, axis=2).reshape(-1, 2)
     _, edge_id = np.unique(e, axis=0, return_inverse=True)
     edge_id = edge_id.reshape(-1)

@@ -14,7 +14,6 @@ import numpy as np
 from cathsim_dmc.anatomy.sdf import SDFGrid
 from cathsim_dmc.anatomy.triangles import corner_angles_rad, face_normals, unique_edges
 
-
 SLIVER_ANGLE_DEG = 12.0
 # Edges of the raw level-set mesh shorter than this fraction of the requested
 # edge length are collapsed. Measured: healthy meshes have no edge below
@@ -24,8 +23,9 @@ SLIVER_ANGLE_DEG = 12.0
 SHORT_EDGE_FRACTION = 0.1
 
 
-def collapse_short_edges(v, f, grid: SDFGrid, min_length: float, frozen: np.ndarray | None = None,
-                         max_rounds: int = 1000):
+def collapse_short_edges(
+    v, f, grid: SDFGrid, min_length: float, frozen: np.ndarray | None = None, max_rounds: int = 1000
+):
     """Collapse every edge shorter than `min_length` (shortest first) into its projected midpoint.
 
     A collapse is skipped if it would pinch the surface (link condition) or turn
@@ -55,8 +55,14 @@ def collapse_short_edges(v, f, grid: SDFGrid, min_length: float, frozen: np.ndar
     return v, f
 
 
-def fix_slivers(v, f, grid: SDFGrid, frozen: np.ndarray | None = None, min_angle_deg: float = SLIVER_ANGLE_DEG,
-                max_rounds: int = 500):
+def fix_slivers(
+    v,
+    f,
+    grid: SDFGrid,
+    frozen: np.ndarray | None = None,
+    min_angle_deg: float = SLIVER_ANGLE_DEG,
+    max_rounds: int = 500,
+):
     """Remove triangles with an angle below `min_angle_deg` (their prisms would be degenerate).
 
     The mesher and the relaxation occasionally pile a few vertices together
@@ -140,7 +146,7 @@ def repair_folds(v, f, grid: SDFGrid, frozen: np.ndarray | None = None, max_roun
             continue
         key = tuple(sorted(int(x) for x in tri))
         if key in smoothed:
-            break            # smoothing did not help either: report what is left
+            break  # smoothing did not help either: report what is left
         smoothed.add(key)
         ring = np.unique(f[np.any(np.isin(f, tri), axis=1)])
         ring = ring[~frozen[ring]]
@@ -172,11 +178,11 @@ def _try_flip(v, f, a, b, aligned) -> bool:
     opp = [int(np.setdiff1d(f[i], [a, b])[0]) for i in has]
     c, d = opp
     if c == d or np.any(np.sum((f == c) | (f == d), axis=1) == 2):
-        return False        # the flipped edge exists already
+        return False  # the flipped edge exists already
     # Keep orientation: face 0 goes a -> b (or b -> a); build the two new faces accordingly.
     f0 = list(f[has[0]])
     i = f0.index(a)
-    forward = f0[(i + 1) % 3] == b          # face 0 = (a, b, c) in order
+    forward = f0[(i + 1) % 3] == b  # face 0 = (a, b, c) in order
     new = np.array([[a, d, c], [b, c, d]]) if forward else np.array([[a, c, d], [b, d, c]])
     if not _better(_angles_deg(v, new), _angles_deg(v, f[has])) or not aligned(v, new):
         return False
@@ -198,7 +204,7 @@ def _try_collapse(v, f, a, b, grid, frozen, aligned, accept=None):
         return None
     nb = lambda x: set(f[np.any(f == x, axis=1)].ravel().tolist()) - {x}
     if nb(a) & nb(b) != set(f[shared].ravel().tolist()) - {a, b}:
-        return None          # link condition: the collapse would pinch the surface
+        return None  # link condition: the collapse would pinch the surface
     ring = np.nonzero(np.any((f == a) | (f == b), axis=1))[0]
     ring = np.setdiff1d(ring, shared)
     m = grid.project_onto_surface(0.5 * (v[a] + v[b])[None])[0]

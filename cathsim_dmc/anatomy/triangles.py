@@ -52,7 +52,7 @@ def boundary_loops(faces: np.ndarray):
     nxt = {}
     for a, c in b:
         if int(a) in nxt:
-            return None                  # a vertex where two holes touch
+            return None  # a vertex where two holes touch
         nxt[int(a)] = int(c)
     loops, seen = [], set()
     for start in sorted(nxt):
@@ -125,8 +125,12 @@ def triangle_quality(vertices: np.ndarray, faces: np.ndarray) -> dict:
     tri = vertices[faces]
     edges = np.stack([np.linalg.norm(tri[:, (c + 1) % 3] - tri[:, c], axis=1) for c in range(3)], 1)
     min_angle = np.degrees(corner_angles_rad(vertices, faces)).min(axis=1)
-    return {"edge_mean": float(edges.mean()), "edge_min": float(edges.min()),
-            "edge_max": float(edges.max()), "min_angle": min_angle}
+    return {
+        "edge_mean": float(edges.mean()),
+        "edge_min": float(edges.min()),
+        "edge_max": float(edges.max()),
+        "min_angle": min_angle,
+    }
 
 
 def canonical_order(vertices: np.ndarray, faces: np.ndarray):

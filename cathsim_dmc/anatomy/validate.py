@@ -42,7 +42,7 @@ from cathsim_dmc.anatomy.polyline import arclength, resample_polyline
 from cathsim_dmc.anatomy.sdf import signed_distance, unsigned_distance
 from cathsim_dmc.anatomy.triangles import face_normals, vertex_normals
 
-WIRE_RADIUS_M = 0.000445            # 0.035 in guidewire
+WIRE_RADIUS_M = 0.000445  # 0.035 in guidewire
 PROBE_RADIUS_M = WIRE_RADIUS_M + 0.0005
 MAX_INTRUSION_M = 0.0002
 MIN_SITE_DEPTH_M = 0.001
@@ -62,13 +62,13 @@ class HullSet:
             facets.append(h[ch.simplices])
         m = max(len(e) for e in eqs)
         self.eq = np.zeros((len(hulls), m, 4))
-        self.eq[:, :, 3] = -1.0                     # padding rows: always satisfied
+        self.eq[:, :, 3] = -1.0  # padding rows: always satisfied
         t = max(len(f) for f in facets)
         self.facets = np.empty((len(hulls), t, 3, 3))
         for i, (e, f) in enumerate(zip(eqs, facets)):
-            self.eq[i, :len(e)] = e
-            self.facets[i, :len(f)] = f
-            self.facets[i, len(f):] = f[0]          # padding: repeat a real facet
+            self.eq[i, : len(e)] = e
+            self.facets[i, : len(f)] = f
+            self.facets[i, len(f) :] = f[0]  # padding: repeat a real facet
         self.centroids = np.array([h.mean(axis=0) for h in hulls])
         self.reach_each = np.array([np.linalg.norm(h - c, axis=1).max() for h, c in zip(hulls, self.centroids)])
         self.reach = float(self.reach_each.max())
@@ -94,7 +94,7 @@ class HullSet:
         pi, hi = self._pairs(points, self.reach + 1e-6, exclude)
         out = np.zeros(len(points), dtype=bool)
         for s in range(0, len(pi), 400_000):
-            p, h = pi[s:s + 400_000], hi[s:s + 400_000]
+            p, h = pi[s : s + 400_000], hi[s : s + 400_000]
             e = self.eq[h]
             val = np.einsum("nfk,nk->nf", e[:, :, :3], points[p]) + e[:, :, 3]
             out[p[np.all(val <= tol, axis=1)]] = True
@@ -120,9 +120,10 @@ class HullSet:
         pi, hi = pi[near], hi[near]
         lower = np.empty(len(pi))
         for s in range(0, len(pi), 200_000):
-            e = self.eq[hi[s:s + 200_000]]
-            lower[s:s + 200_000] = np.max(np.einsum("nfk,nk->nf", e[:, :, :3], points[pi[s:s + 200_000]])
-                                          + e[:, :, 3], axis=1)
+            e = self.eq[hi[s : s + 200_000]]
+            lower[s : s + 200_000] = np.max(
+                np.einsum("nfk,nk->nf", e[:, :, :3], points[pi[s : s + 200_000]]) + e[:, :, 3], axis=1
+            )
         point_lower = np.full(len(points), np.inf)
         np.minimum.at(point_lower, pi, lower)
         best = float(upper.min())
@@ -133,7 +134,7 @@ class HullSet:
         order = np.argsort(lower[keep], kind="stable")
         pi, hi = pi[order], hi[order]
         for s in range(0, len(pi), 20_000):
-            p, h = pi[s:s + 20_000], hi[s:s + 20_000]
+            p, h = pi[s : s + 20_000], hi[s : s + 20_000]
             tri = self.facets[h].reshape(-1, 3, 3)
             q = np.repeat(points[p], nt, axis=0)
             # In millimetres: trimesh's tolerances are absolute.
@@ -151,14 +152,14 @@ class ValidationReport:
     hulls: int
     triangles: int
     probe_radius_m: float
-    clearance_m: Dict[str, float]        # min distance from each centerline to any collision piece
-    site_depth_m: Dict[str, float]       # depth of each site inside the lumen
-    max_intrusion_m: float               # deepest sampled collision point inside the lumen (<= 0: none)
+    clearance_m: Dict[str, float]  # min distance from each centerline to any collision piece
+    site_depth_m: Dict[str, float]  # depth of each site inside the lumen
+    max_intrusion_m: float  # deepest sampled collision point inside the lumen (<= 0: none)
     intrusion_samples: int
     shell_samples: int
     ostium_samples: int
     holes: int
-    compile_seconds: Optional[float]     # MuJoCo compile (cathsim_dmc.sim.model_check); None: not run or failed
+    compile_seconds: Optional[float]  # MuJoCo compile (cathsim_dmc.sim.model_check); None: not run or failed
     seconds: float
     problems: List[str]
 
@@ -175,11 +176,13 @@ class ValidationReport:
         clear = ", ".join(f"{k} {v * 1e3:.2f}" for k, v in sorted(self.clearance_m.items()))
         depth = ", ".join(f"{k} {v * 1e3:.1f}" for k, v in sorted(self.site_depth_m.items()))
         comp = "skipped" if self.compile_seconds is None else f"{self.compile_seconds:.2f} s"
-        return (f"{self.name}: {status}; {self.hulls} pieces; centerline clearance to the wall (mm, probe "
-                f"{self.probe_radius_m * 1e3:.3f}): {clear}; site depth (mm): {depth}; max intrusion "
-                f"{max(self.max_intrusion_m, 0.0) * 1e3:.3f} mm ({self.intrusion_samples} samples); wall holes "
-                f"{self.holes} of {self.shell_samples} shell samples ({self.ostium_samples} near ostia); "
-                f"MuJoCo compile {comp}; checked in {self.seconds:.1f} s")
+        return (
+            f"{self.name}: {status}; {self.hulls} pieces; centerline clearance to the wall (mm, probe "
+            f"{self.probe_radius_m * 1e3:.3f}): {clear}; site depth (mm): {depth}; max intrusion "
+            f"{max(self.max_intrusion_m, 0.0) * 1e3:.3f} mm ({self.intrusion_samples} samples); wall holes "
+            f"{self.holes} of {self.shell_samples} shell samples ({self.ostium_samples} near ostia); "
+            f"MuJoCo compile {comp}; checked in {self.seconds:.1f} s"
+        )
 
 
 def _lumen_mesh(asset: AortaAsset):
@@ -254,14 +257,18 @@ def site_placement_problems(centerlines, label=lambda name: f"site {name}") -> L
         length = float(arclength(pts)[-1])
         shortest = MIN_PATH_ENTRY_DIAMETERS * 2 * float(rad[0])
         if length < shortest:
-            problems.append(f"{label(name)} is {length * 1e3:.1f} mm along the vessel from the entry (needs >= "
-                            f"{shortest * 1e3:.0f} mm, {MIN_PATH_ENTRY_DIAMETERS:g} entry diameters): it coincides "
-                            f"with the entry; move the entry or the site")
+            problems.append(
+                f"{label(name)} is {length * 1e3:.1f} mm along the vessel from the entry (needs >= "
+                f"{shortest * 1e3:.0f} mm, {MIN_PATH_ENTRY_DIAMETERS:g} entry diameters): it coincides "
+                f"with the entry; move the entry or the site"
+            )
             continue
         depth, r_branch = branch_depth(pts, rad)
         if depth is not None and depth < r_branch:
-            problems.append(f"{label(name)} is {depth * 1e3:.1f} mm into its branch (needs >= {r_branch * 1e3:.1f} "
-                            f"mm, its lumen radius): move it deeper along the branch (the shipped sites: 35-40 mm)")
+            problems.append(
+                f"{label(name)} is {depth * 1e3:.1f} mm into its branch (needs >= {r_branch * 1e3:.1f} "
+                f"mm, its lumen radius): move it deeper along the branch (the shipped sites: 35-40 mm)"
+            )
     return problems
 
 
@@ -301,11 +308,21 @@ def ostia_from_centerlines(centerlines) -> Dict[str, np.ndarray]:
     return out
 
 
-def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 24_000,
-                   ostium_radius_m: float = 0.015, interior_per_piece: int = 1, interior_near_ostia: int = 4,
-                   probe_radius_m: float = PROBE_RADIUS_M, max_intrusion_m: float = MAX_INTRUSION_M,
-                   min_site_depth_m: float = MIN_SITE_DEPTH_M, seed: int = 0, hullset: Optional[HullSet] = None,
-                   checks=("sites", "lumen", "intrusion", "wall")) -> ValidationReport:
+def validate_asset(
+    asset,
+    *,
+    shell_samples: int = 40_000,
+    ostium_samples: int = 24_000,
+    ostium_radius_m: float = 0.015,
+    interior_per_piece: int = 1,
+    interior_near_ostia: int = 4,
+    probe_radius_m: float = PROBE_RADIUS_M,
+    max_intrusion_m: float = MAX_INTRUSION_M,
+    min_site_depth_m: float = MIN_SITE_DEPTH_M,
+    seed: int = 0,
+    hullset: Optional[HullSet] = None,
+    checks=("sites", "lumen", "intrusion", "wall"),
+) -> ValidationReport:
     """Run the checks on `asset` (an `AortaAsset` or a folder); never raises on a failed check.
 
     `checks` selects among "sites", "lumen" (the probe along the centerlines),
@@ -321,7 +338,7 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     rng = np.random.default_rng(seed)
     problems: List[str] = []
     v, f = _lumen_mesh(asset)
-    sd = lambda pts: signed_distance(v, f, np.asarray(pts, dtype=np.float64))   # + inside
+    sd = lambda pts: signed_distance(v, f, np.asarray(pts, dtype=np.float64))  # + inside
     hs = HullSet(asset.hulls) if hullset is None else hullset
     thickness = asset.wall_thickness_m
     ostia = estimate_ostia(asset)
@@ -353,8 +370,10 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
         dense = resample_polyline(pts, 0.00025)
         clearance[k], i = hs.min_distance(dense)
         if clearance[k] < probe_radius_m:
-            problems.append(f"centerline {k} passes {clearance[k] * 1e3:.2f} mm from a collision piece at "
-                            f"{np.round(dense[i] * 1e3, 1).tolist()} mm (a {probe_radius_m * 1e3:.3f} mm probe touches it)")
+            problems.append(
+                f"centerline {k} passes {clearance[k] * 1e3:.2f} mm from a collision piece at "
+                f"{np.round(dense[i] * 1e3, 1).tolist()} mm (a {probe_radius_m * 1e3:.3f} mm probe touches it)"
+            )
 
     # --- intrusion: piece vertices + interior samples (more around the ostia)
     o = asset.hull_offsets
@@ -364,8 +383,11 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     near_o = np.zeros(len(sizes), dtype=bool)
     if len(ostium_pts):
         near_o = np.min(np.linalg.norm(hs.centroids[:, None] - ostium_pts[None], axis=2), axis=1) < ostium_radius_m
-    for reps, sel in ((interior_per_piece, np.ones(len(sizes), dtype=bool)), (interior_near_ostia, near_o)) \
-            if "intrusion" in checks else ():
+    for reps, sel in (
+        ((interior_per_piece, np.ones(len(sizes), dtype=bool)), (interior_near_ostia, near_o))
+        if "intrusion" in checks
+        else ()
+    ):
         for _ in range(reps):
             idx = np.nonzero(sel)[0]
             if not len(idx):
@@ -383,8 +405,10 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
     max_intrusion = float(intr.max())
     if max_intrusion > max_intrusion_m:
         i = int(np.argmax(intr))
-        problems.append(f"a collision piece reaches {max_intrusion * 1e3:.3f} mm into the lumen at "
-                        f"{np.round(samples[i] * 1e3, 1).tolist()} mm (limit {max_intrusion_m * 1e3:.1f} mm)")
+        problems.append(
+            f"a collision piece reaches {max_intrusion * 1e3:.3f} mm into the lumen at "
+            f"{np.round(samples[i] * 1e3, 1).tolist()} mm (limit {max_intrusion_m * 1e3:.1f} mm)"
+        )
 
     # --- wall continuity: shell samples
     cap = cap_faces(asset)
@@ -423,11 +447,24 @@ def validate_asset(asset, *, shell_samples: int = 40_000, ostium_samples: int = 
         holes = int(np.sum(~in_lumen))
         if holes:
             where = pts[uncovered][~in_lumen][0]
-            problems.append(f"{holes} of {len(pts)} wall-shell samples lie in no collision piece "
-                            f"(first at {np.round(where * 1e3, 1).tolist()} mm)")
+            problems.append(
+                f"{holes} of {len(pts)} wall-shell samples lie in no collision piece "
+                f"(first at {np.round(where * 1e3, 1).tolist()} mm)"
+            )
 
     return ValidationReport(
-        name=asset.name, hulls=asset.hull_count, triangles=len(f), probe_radius_m=probe_radius_m,
-        clearance_m=clearance, site_depth_m=site_depth, max_intrusion_m=max_intrusion,
-        intrusion_samples=len(samples), shell_samples=len(pts), ostium_samples=n_near, holes=holes,
-        compile_seconds=None, seconds=time.perf_counter() - t0, problems=problems)
+        name=asset.name,
+        hulls=asset.hull_count,
+        triangles=len(f),
+        probe_radius_m=probe_radius_m,
+        clearance_m=clearance,
+        site_depth_m=site_depth,
+        max_intrusion_m=max_intrusion,
+        intrusion_samples=len(samples),
+        shell_samples=len(pts),
+        ostium_samples=n_near,
+        holes=holes,
+        compile_seconds=None,
+        seconds=time.perf_counter() - t0,
+        problems=problems,
+    )

@@ -71,21 +71,30 @@ def surface_samples(v: np.ndarray, f: np.ndarray, max_spacing: float) -> np.ndar
     tri = v[f]
     longest = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
     n = np.maximum(np.ceil(longest / max_spacing).astype(int), 1)
-    out = [v[np.unique(f)]]          # vertices no triangle uses are not surface
+    out = [v[np.unique(f)]]  # vertices no triangle uses are not surface
     for k in np.unique(n):
         sel = tri[n == k]
         # Barycentric lattice with k divisions per edge.
         i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
         keep = i + j <= k
         a, b = i[keep] / k, j[keep] / k
-        w = np.stack([1 - a - b, a, b], axis=1)                        # (L, 3)
+        w = np.stack([1 - a - b, a, b], axis=1)  # (L, 3)
         out.append(np.einsum("lc,tcd->tld", w, sel).reshape(-1, 3))
     return np.concatenate(out)
 
 
-def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, entry: np.ndarray,
-                    sites: Mapping[str, np.ndarray], *, max_gap_m: float = 0.002, smooth_m: float = 0.0,
-                    max_nodes: int = 60_000_000) -> "tuple[SDFGrid, List[str]]":
+def volume_sdf_grid(
+    v: np.ndarray,
+    f: np.ndarray,
+    spacing: float,
+    pad: float,
+    entry: np.ndarray,
+    sites: Mapping[str, np.ndarray],
+    *,
+    max_gap_m: float = 0.002,
+    smooth_m: float = 0.0,
+    max_nodes: int = 60_000_000,
+) -> "tuple[SDFGrid, List[str]]":
     """Signed distance grid (positive outside) of the lumen around `entry`, and notes on what was done.
 
     `v` (metres) and `f` need not form a closed or manifold surface; see the module docstring.
@@ -100,8 +109,7 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
     lo = np.floor((v.min(axis=0) - pad) / h) * h
     n = np.ceil((v.max(axis=0) + pad - lo) / h).astype(int) + 1
     if int(np.prod(n.astype(float))) > max_nodes:
-        raise VolumeError(f"the volume needs a {n[0]}x{n[1]}x{n[2]} grid at sdf_mm={h * 1e3:.2f}; pass a larger "
-                          f"sdf_mm")
+        raise VolumeError(f"the volume needs a {n[0]}x{n[1]}x{n[2]} grid at sdf_mm={h * 1e3:.2f}; pass a larger sdf_mm")
     shape = tuple(int(x) for x in n)
     samples = surface_samples(v, f, 0.5 * h)
     shell = np.zeros(shape, dtype=bool)
@@ -109,13 +117,17 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
     # Samples at most half a node apart put a shell node at one end of every grid edge the surface
     # crosses, so the shell seals the outside from the inside (6-connected flood fill).
     shell[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-    seeds = {"entry": np.asarray(entry, dtype=np.float64), **{f"sites.{k}": np.asarray(p, dtype=np.float64)
-                                                             for k, p in sites.items()}}
+    seeds = {
+        "entry": np.asarray(entry, dtype=np.float64),
+        **{f"sites.{k}": np.asarray(p, dtype=np.float64) for k, p in sites.items()},
+    }
     seed_idx = {k: tuple(np.clip(np.rint((p - lo) / h).astype(int), 0, n - 1)) for k, p in seeds.items()}
     for k, ix in seed_idx.items():
         if shell[ix]:
-            raise VolumeError(f"{k}={_fmt_mm(seeds[k])} lies within {h * 1e3:.1f} mm of the surface; put it "
-                              f"further inside the vessel or pass a smaller sdf_mm")
+            raise VolumeError(
+                f"{k}={_fmt_mm(seeds[k])} lies within {h * 1e3:.1f} mm of the surface; put it "
+                f"further inside the vessel or pass a smaller sdf_mm"
+            )
     # Outside: the flood from the border; a leak into a seed is closed by thickening the shell.
     max_close = int(np.floor(max_gap_m / (2 * h)))
     free_depth = None
@@ -124,7 +136,7 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
             blocked = shell
         else:
             if free_depth is None:
-                free_depth = ndimage.distance_transform_edt(~shell)        # nodes to the shell
+                free_depth = ndimage.distance_transform_edt(~shell)  # nodes to the shell
             blocked = free_depth <= close
         labels, count = ndimage.label(~blocked)
         is_border = np.zeros(count + 1, dtype=bool)
@@ -135,9 +147,11 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
         if not leaked:
             break
     else:
-        raise VolumeError(f"the surface is open: the outside reaches {leaked[0]}={_fmt_mm(seeds[leaked[0]])} through "
-                          f"a gap wider than {max_gap_m * 1e3:.1f} mm; close the vessel's ends or pass a larger "
-                          f"close_mm")
+        raise VolumeError(
+            f"the surface is open: the outside reaches {leaked[0]}={_fmt_mm(seeds[leaked[0]])} through "
+            f"a gap wider than {max_gap_m * 1e3:.1f} mm; close the vessel's ends or pass a larger "
+            f"close_mm"
+        )
     del free_depth, blocked
     outside = is_border[labels]
     if close:
@@ -150,8 +164,10 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
     lumen_label = pieces[seed_idx["entry"]]
     apart = [k for k, ix in seed_idx.items() if pieces[ix] != lumen_label]
     if apart:
-        raise VolumeError(f"{apart[0]}={_fmt_mm(seeds[apart[0]])} is not in the same vessel as the entry (the "
-                          f"surface separates them); check the point or pass a smaller sdf_mm")
+        raise VolumeError(
+            f"{apart[0]}={_fmt_mm(seeds[apart[0]])} is not in the same vessel as the entry (the "
+            f"surface separates them); check the point or pass a smaller sdf_mm"
+        )
     lumen = pieces == lumen_label
     dropped_pieces = count - 1
     del pieces, inside
@@ -178,12 +194,13 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
     # Surface samples far from the kept lumen's boundary: a second surface (a wall shell) or pieces dropped.
     far = np.abs(values[idx[:, 0], idx[:, 1], idx[:, 2]]) > 2 * h
     if far.mean() > 0.25:
-        notes.append(f"the mesh has a second surface around the lumen ({100 * far.mean():.0f}% of it lies "
-                     f"{np.median(np.abs(values[tuple(idx[far].T)])) * 1e3:.1f} mm outside; a wall shell, inner and "
-                     f"outer vessel surface?): using the inner surface around the entry")
+        notes.append(
+            f"the mesh has a second surface around the lumen ({100 * far.mean():.0f}% of it lies "
+            f"{np.median(np.abs(values[tuple(idx[far].T)])) * 1e3:.1f} mm outside; a wall shell, inner and "
+            f"outer vessel surface?): using the inner surface around the entry"
+        )
     elif dropped_pieces:
-        notes.append(f"dropped {dropped_pieces} enclosed piece{'s' * (dropped_pieces > 1)} not connected to the "
-                     f"entry")
+        notes.append(f"dropped {dropped_pieces} enclosed piece{'s' * (dropped_pieces > 1)} not connected to the entry")
     band = np.argwhere(near)
     dist, _ = spatial.cKDTree(samples).query(lo + h * band)
     values[tuple(band.T)] = np.where(lumen[tuple(band.T)], -dist, dist)
@@ -192,8 +209,9 @@ def volume_sdf_grid(v: np.ndarray, f: np.ndarray, spacing: float, pad: float, en
     return SDFGrid(origin=lo, spacing=h, values=values), notes
 
 
-def trim_side_branches(grid: SDFGrid, paths: Sequence[np.ndarray], entry: np.ndarray,
-                       min_diameter_m: float) -> "tuple[SDFGrid, List[str]]":
+def trim_side_branches(
+    grid: SDFGrid, paths: Sequence[np.ndarray], entry: np.ndarray, min_diameter_m: float
+) -> "tuple[SDFGrid, List[str]]":
     """Cut off side branches narrower than `min_diameter_m` that no path in `paths` runs through.
 
     A branch is narrow where a ball of that diameter does not fit (a morphological
@@ -206,7 +224,7 @@ def trim_side_branches(grid: SDFGrid, paths: Sequence[np.ndarray], entry: np.nda
         return grid, []
     h = grid.spacing
     inside = grid.values < 0
-    r = 0.5 * min_diameter_m / h                                       # in nodes
+    r = 0.5 * min_diameter_m / h  # in nodes
     # Opening: the nodes a ball of the diameter fits around (the grid is a distance already), grown back.
     core = grid.values < -0.5 * min_diameter_m
     to_core = ndimage.distance_transform_edt(~core)
@@ -242,18 +260,24 @@ def trim_side_branches(grid: SDFGrid, paths: Sequence[np.ndarray], entry: np.nda
     hi_i = np.minimum(where.max(axis=0) + 5, np.array(removed.shape))
     box = tuple(slice(a, b) for a, b in zip(lo_i, hi_i))
     sub = removed[box]
-    sdf_removed = np.where(sub, -np.maximum(ndimage.distance_transform_edt(sub) - 0.5, 0.0),
-                           np.maximum(ndimage.distance_transform_edt(~sub) - 0.5, 0.0)) * h
+    sdf_removed = (
+        np.where(
+            sub,
+            -np.maximum(ndimage.distance_transform_edt(sub) - 0.5, 0.0),
+            np.maximum(ndimage.distance_transform_edt(~sub) - 0.5, 0.0),
+        )
+        * h
+    )
     values = grid.values.copy()
     values[box] = np.maximum(values[box], -sdf_removed)
     # Keep the lumen piece around the entry (a cut can leave nothing else, but be sure).
     pieces2, _ = ndimage.label(values < 0)
-    e = tuple(np.clip(np.rint((np.asarray(entry) - grid.origin) / h).astype(int), 0,
-                      np.array(values.shape) - 1))
+    e = tuple(np.clip(np.rint((np.asarray(entry) - grid.origin) / h).astype(int), 0, np.array(values.shape) - 1))
     if pieces2[e] > 0:
         values = np.where((values < 0) & (pieces2 != pieces2[e]), h, values)
     volume_mm3 = float(removed.sum()) * (h * 1e3) ** 3
     n_cut = int(cut.sum())
     return SDFGrid(origin=grid.origin, spacing=h, values=values), [
         f"trimmed {n_cut} side branch{'es' * (n_cut > 1)} narrower than {min_diameter_m * 1e3:.1f} mm "
-        f"({volume_mm3:.0f} mm^3; trim_mm=0 keeps them)"]
+        f"({volume_mm3:.0f} mm^3; trim_mm=0 keeps them)"
+    ]

@@ -13,8 +13,16 @@ from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any, List, Optional
 
-from cathsim_dmc.app.train_schema import (MISSING, AlgoConfig, DemosConfig, ScenarioConfig, TaskConfig, TrainConfig, _number,
-                                check_section)
+from cathsim_dmc.app.train_schema import (
+    MISSING,
+    AlgoConfig,
+    DemosConfig,
+    ScenarioConfig,
+    TaskConfig,
+    TrainConfig,
+    _number,
+    check_section,
+)
 
 VIDEO_FORMATS = ("gif", "mp4")
 IMAGE_KEYS = ("pixels", "guidewire_mask")  # the image a student (bc) or force network sees
@@ -78,7 +86,7 @@ class BCOptions:
 class BCToolConfig(ScenarioConfig):
     """cathsim-bc (conf/bc.yaml)."""
 
-    data: Any = MISSING                # a dataset folder or a list of them
+    data: Any = MISSING  # a dataset folder or a list of them
     seed: int = _set(0, whole=True)
     bc: BCOptions = field(default_factory=BCOptions)
     torch_threads: int = _set(0, whole=True)
@@ -144,8 +152,15 @@ class ExportConfig:
     overwrite: bool = MISSING
 
 
-TOOL_SCHEMAS = {"train": TrainConfig, "eval": EvalConfig, "collect": CollectConfig, "bc": BCToolConfig,
-                "force": ForceToolConfig, "bench": BenchConfig, "export": ExportConfig}
+TOOL_SCHEMAS = {
+    "train": TrainConfig,
+    "eval": EvalConfig,
+    "collect": CollectConfig,
+    "bc": BCToolConfig,
+    "force": ForceToolConfig,
+    "bench": BenchConfig,
+    "export": ExportConfig,
+}
 
 
 # --- registration and validation of every tool's config -----------------------------------
@@ -193,8 +208,10 @@ def check_known_keys(cfg, tool: str | None = "train") -> None:
         unknown = sorted(set(node.keys()) - names)
         if unknown:
             key = f"{section}.{unknown[0]}" if section else unknown[0]
-            raise ValueError(f"unknown option {key}: not in {(sections[section] if section else schema).__name__} "
-                             f"(cathsim_dmc/app/train_schema.py, cathsim_dmc/app/tool_schemas.py)")
+            raise ValueError(
+                f"unknown option {key}: not in {(sections[section] if section else schema).__name__} "
+                f"(cathsim_dmc/app/train_schema.py, cathsim_dmc/app/tool_schemas.py)"
+            )
 
 
 def validate(cfg, tool: str = "train") -> None:
@@ -224,5 +241,6 @@ def check_cuda(key: str, device: str) -> None:
         raise ValueError(f"{key}={device!r}, but torch sees no CUDA GPU on this machine; choose cpu or auto")
     count, index = torch.cuda.device_count(), device.partition(":")[2]
     if index and not (index.isdigit() and int(index) < count):
-        raise ValueError(f"{key}={device!r}: this machine has {count} CUDA GPU(s); choose cuda or cuda:0 to "
-                         f"cuda:{count - 1}")
+        raise ValueError(
+            f"{key}={device!r}: this machine has {count} CUDA GPU(s); choose cuda or cuda:0 to cuda:{count - 1}"
+        )

@@ -19,9 +19,9 @@ translates their config.yaml (see there).
 """
 
 import logging
-from pathlib import Path
 from dataclasses import MISSING as NO_DEFAULT
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 from typing import Any, List, Mapping, Optional
 
 log = logging.getLogger(__name__)
@@ -38,8 +38,7 @@ DEMONSTRATORS = ("expert", "expert_steady")
 def _number(default, minimum=None, maximum=None, above=None, whole=False, choices=None, below=None):
     """A dataclass field with its range: >= `minimum`, > `above`, <= `maximum`, < `below`,
     an int if `whole`, or one of `choices` (strings). None as a default means the option may be off."""
-    check = {"minimum": minimum, "maximum": maximum, "above": above, "whole": whole, "choices": choices,
-             "below": below}
+    check = {"minimum": minimum, "maximum": maximum, "above": above, "whole": whole, "choices": choices, "below": below}
     if isinstance(default, list):
         return field(default_factory=lambda: list(default), metadata=check)
     return field(default=default, metadata=check)
@@ -55,13 +54,13 @@ class TaskConfig:
     the defaults of the Python API (`tasks.load`, `Navigate`), which reads them from here;
     the ranges are checked by tasks.check_options, which both share."""
 
-    target: str = MISSING              # bca | lcca
-    delta_m: float = 0.004             # success radius (the paper's 4 mm)
+    target: str = MISSING  # bca | lcca
+    delta_m: float = 0.004  # success radius (the paper's 4 mm)
     success_reward: float = 10.0
-    dense: bool = True                 # the dense reward (false: only the success reward)
-    max_steps: int = 300               # the paper's episode limit
-    physics: str = "fast"              # fast (PGS, prism wall) | fast_field | accurate (Newton); docs/model.md#physics
-    catheter: Optional[str] = None     # a shaped catheter over the wire (angled_5f); docs/model.md#catheter
+    dense: bool = True  # the dense reward (false: only the success reward)
+    max_steps: int = 300  # the paper's episode limit
+    physics: str = "fast"  # fast (PGS, prism wall) | fast_field | accurate (Newton); docs/model.md#physics
+    catheter: Optional[str] = None  # a shaped catheter over the wire (angled_5f); docs/model.md#catheter
     # The start pose: the robot's rotation drawn from start_rotation_rad +- start_rotation_jitter_rad
     # (pi: the tip's bend in the view's plane), its insertion from [0, start_insertion_jitter_m].
     start_rotation_rad: float = 3.141592653589793
@@ -89,9 +88,9 @@ class AlgoConfig:
     tau: float = _number(0.005, minimum=0.0, maximum=1.0)
     gamma: float = _number(0.99, minimum=0.0, maximum=1.0)
     train_freq: int = _count(1, minimum=1)
-    gradient_steps: int = 1            # SB3's: -1 means as many as environment steps
+    gradient_steps: int = 1  # SB3's: -1 means as many as environment steps
     target_update_interval: int = _count(1, minimum=1)
-    target_entropy: float = -2.0       # = -dim(action)
+    target_entropy: float = -2.0  # = -dim(action)
     # The paper lists the entropy coefficient as 1 next to a target entropy. A target only
     # matters when the coefficient is learned, so "1" is read as its initial value: SB3's
     # "auto_1.0" (learned, starting at 1.0). A number fixes it.
@@ -99,7 +98,7 @@ class AlgoConfig:
     learning_starts: int = _count(1000)  # random actions before the first update
     net_arch: List[int] = _number([256, 256], minimum=1, whole=True)  # actor and critic heads on the features
     share_features_extractor: bool = False  # true: one ENN for actor and critic (faster on a CPU)
-    critic_layer_norm: bool = False    # true: LayerNorm after each hidden layer of the critics (RLPD)
+    critic_layer_norm: bool = False  # true: LayerNorm after each hidden layer of the critics (RLPD)
     # > 0: evaluate (and keep as best.zip) an exponential average of the actor's weights
     actor_average_tau: float = _number(0.0, minimum=0.0, maximum=1.0)
 
@@ -109,11 +108,11 @@ class DemosConfig:
     """`demos`: demonstrations mixed into training. The defaults are plain SAC (none);
     conf/demos/expert.yaml is the recipe's."""
 
-    episodes: int = _count(0)          # expert episodes recorded before training (0: none)
+    episodes: int = _count(0)  # expert episodes recorded before training (0: none)
     share: float = _number(0.5, minimum=0.0, maximum=1.0)  # of every batch (RLPD's symmetric sampling)
     capacity: int = _count(20_000, minimum=1)  # most demonstration transitions kept (100 expert episodes: ~6-16k)
     pretrain_actor_steps: int = _count(0)  # behavioural-cloning steps of the actor before SAC starts
-    critic_warmup_steps: int = _count(0)   # critic-only updates on the demonstrations after that
+    critic_warmup_steps: int = _count(0)  # critic-only updates on the demonstrations after that
     # behavioural-cloning term in the actor's loss, x mean|Q|, counted on every
     # demonstration state of the batch (TD3+BC's form; 0: plain SAC)
     bc_weight: float = _number(0.0, minimum=0.0)
@@ -130,7 +129,7 @@ class DemosConfig:
     dagger_rounds: int = _count(0)
     dagger_episodes: int = _count(50, minimum=1)
     dagger_capacity: int = _count(200_000, minimum=1)  # most expert labels kept
-    path: Optional[str] = None         # a cathsim-collect folder to take them from instead of recording the expert
+    path: Optional[str] = None  # a cathsim-collect folder to take them from instead of recording the expert
     # the scripted expert that records the demonstrations, takes over and labels: expert, or
     # expert_steady (no turns where the path runs straight ahead of the tip)
     expert: str = _number("expert", choices=DEMONSTRATORS)
@@ -156,12 +155,12 @@ class TrainerConfig:
     # steps between checkpoints; null: with every periodic evaluation (eval_every; 1000 steps
     # without one), so a killed run resumes from its last evaluation; 0: only at the end
     checkpoint_every: Optional[int] = _count(None)
-    save_replay_buffer: bool = False   # also checkpoint the replay buffer (large with images)
+    save_replay_buffer: bool = False  # also checkpoint the replay buffer (large with images)
     device: str = _number("auto", choices=DEVICES)  # or cuda:<index>
     # 1 thread: 71 ms per SAC update against 478 ms with 2 on a busy 2-core machine; 0: torch's default
     torch_threads: int = _count(1)
     progress_bar: bool = True
-    video: bool = True                 # video of the first evaluation episode
+    video: bool = True  # video of the first evaluation episode
     # which policy the final report evaluates (best: best.zip of the periodic evaluations, when eval_every > 0)
     final_policy: str = _number("best", choices=FINAL_POLICIES)
 
@@ -195,15 +194,19 @@ class TrainConfig(ScenarioConfig):
     reward: Any = MISSING
     demos: DemosConfig = MISSING
     seed: int = _count(0)
-    resume: Optional[str] = None       # a run folder to continue from its last checkpoint
+    resume: Optional[str] = None  # a run folder to continue from its last checkpoint
     trainer: TrainerConfig = field(default_factory=TrainerConfig)
     experimental: ExperimentalConfig = field(default_factory=ExperimentalConfig)
 
 
 # --- ranges ---------------------------------------------------------------------------
 
-TRAIN_SECTIONS = {"trainer": TrainerConfig, "algo": AlgoConfig, "demos": DemosConfig,
-                  "experimental": ExperimentalConfig}
+TRAIN_SECTIONS = {
+    "trainer": TrainerConfig,
+    "algo": AlgoConfig,
+    "demos": DemosConfig,
+    "experimental": ExperimentalConfig,
+}
 
 
 def check_section(name: str, schema, values: Mapping) -> None:
@@ -229,7 +232,9 @@ def check_section(name: str, schema, values: Mapping) -> None:
         items = list(value) if isinstance(value, Sequence) and not isinstance(value, str) else [value]
         if check["choices"] is not None:
             for item in items:
-                if str(item) not in check["choices"] and not (key == "trainer.device" and str(item).startswith("cuda:")):
+                if str(item) not in check["choices"] and not (
+                    key == "trainer.device" and str(item).startswith("cuda:")
+                ):
                     raise ValueError(f"{key}={value!r}; choose one of {list(check['choices'])}")
             continue
         for item in items:
@@ -240,15 +245,20 @@ def check_section(name: str, schema, values: Mapping) -> None:
                 raise ValueError(f"{key}={item!r} must lie in [{check['minimum']:g}, {check['maximum']:g}]")
             if check.get("below") is not None and not number < check["below"]:
                 low = check["minimum"] if check["minimum"] is not None else check["above"]
-                raise ValueError(f"{key}={item!r} must lie in {'[' if check['minimum'] is not None else '('}"
-                                 f"{low:g}, {check['below']:g})")
+                raise ValueError(
+                    f"{key}={item!r} must lie in {'[' if check['minimum'] is not None else '('}"
+                    f"{low:g}, {check['below']:g})"
+                )
 
 
 def with_defaults(schema, values: Mapping | None) -> dict:
     """`values` (a Python caller's dict may hold only the options it sets) over `schema`'s
     defaults: the trainer reads every option, and each default lives here once."""
-    defaults = {spec.name: spec.default_factory() if spec.default is NO_DEFAULT else spec.default
-                for spec in fields(schema) if spec.default is not NO_DEFAULT or spec.default_factory is not NO_DEFAULT}
+    defaults = {
+        spec.name: spec.default_factory() if spec.default is NO_DEFAULT else spec.default
+        for spec in fields(schema)
+        if spec.default is not NO_DEFAULT or spec.default_factory is not NO_DEFAULT
+    }
     return {**defaults, **dict(values or {})}
 
 
@@ -285,8 +295,10 @@ def upgrade_saved_config(saved) -> Any:
 
     config = OmegaConf.to_container(saved, resolve=True)
     if (config.get("reward") or {}).get("name") == "aim":
-        raise ValueError("this run was trained with reward=aim, since removed (it measured no better than "
-                         "reward=progress; docs/training.md): it cannot continue as trained; start a new run")
+        raise ValueError(
+            "this run was trained with reward=aim, since removed (it measured no better than "
+            "reward=progress; docs/training.md): it cannot continue as trained; start a new run"
+        )
     dropped = []
     for old, new in MOVED.items():
         value = _pop(config, old)
@@ -299,13 +311,14 @@ def upgrade_saved_config(saved) -> Any:
         if value is NO_DEFAULT:
             continue
         if value != inert and not (value is None and inert == 0) and not (old == "demos.bc_filter" and inert_filter):
-            raise ValueError(f"this run was trained with {old}={value!r}, an option since removed "
-                             f"(it measured no gain; docs/training.md): it cannot continue as trained; "
-                             f"start a new run")
+            raise ValueError(
+                f"this run was trained with {old}={value!r}, an option since removed "
+                f"(it measured no gain; docs/training.md): it cannot continue as trained; "
+                f"start a new run"
+            )
         dropped.append(old)
     if dropped:
-        log.warning("resume: dropped options since removed, at the values that change nothing: %s",
-                    ", ".join(dropped))
+        log.warning("resume: dropped options since removed, at the values that change nothing: %s", ", ".join(dropped))
     return OmegaConf.merge(OmegaConf.structured(TrainConfig), config)
 
 

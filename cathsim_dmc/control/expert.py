@@ -74,9 +74,16 @@ class CenterlineExpert:
         image-only student can learn (`policy=expert_steady`, docs/paper.md#imitation).
     """
 
-    def __init__(self, lookahead_radii: float = 1.5, aligned_rad: float = np.deg2rad(35),
-                 stall_steps: int = 6, min_progress_m: float = 1e-3, retract_steps: int = 2,
-                 lost_margin_m: float = 2e-3, hold_rotation_on_straight: bool = False):
+    def __init__(
+        self,
+        lookahead_radii: float = 1.5,
+        aligned_rad: float = np.deg2rad(35),
+        stall_steps: int = 6,
+        min_progress_m: float = 1e-3,
+        retract_steps: int = 2,
+        lost_margin_m: float = 2e-3,
+        hold_rotation_on_straight: bool = False,
+    ):
         self.lookahead_radii = lookahead_radii
         self.aligned_rad = aligned_rad
         self.stall_steps = stall_steps

@@ -99,10 +99,14 @@ def _expert(seed: int = 0, **options):
     return CenterlineExpert(**options)
 
 
-BUILTIN_POLICIES = {"forward": lambda seed=0: ForwardPolicy(), "random": RandomPolicy, "adversarial": AdversarialPolicy,
-                    "expert": _expert,
-                    # the expert without turns on straight stretches: data for image-only students
-                    "expert_steady": lambda seed=0: _expert(seed, hold_rotation_on_straight=True)}
+BUILTIN_POLICIES = {
+    "forward": lambda seed=0: ForwardPolicy(),
+    "random": RandomPolicy,
+    "adversarial": AdversarialPolicy,
+    "expert": _expert,
+    # the expert without turns on straight stretches: data for image-only students
+    "expert_steady": lambda seed=0: _expert(seed, hold_rotation_on_straight=True),
+}
 
 
 def make_policy(name: str, seed: int = 0):
@@ -111,6 +115,8 @@ def make_policy(name: str, seed: int = 0):
     if name in BUILTIN_POLICIES:
         return BUILTIN_POLICIES[name](seed=seed)
     if Path(name).exists():
-        raise ValueError(f"policy={name!r} is a checkpoint path: cathsim_dmc.learning.agents.make_policy loads trained agents "
-                         f"(cathsim_dmc.control.policies holds the built-in ones, {sorted(BUILTIN_POLICIES)})")
+        raise ValueError(
+            f"policy={name!r} is a checkpoint path: cathsim_dmc.learning.agents.make_policy loads trained agents "
+            f"(cathsim_dmc.control.policies holds the built-in ones, {sorted(BUILTIN_POLICIES)})"
+        )
     raise ValueError(f"policy={name!r} is not a built-in policy {sorted(BUILTIN_POLICIES)}")

@@ -88,7 +88,9 @@ class TeleopSession:
 
     def reset(self) -> None:
         _, self.info = self.env.reset(seed=self.seed + self.episodes)
-        self.recorder.start_episode(self.info["tip_position_m"], self._remaining(self._centerline, self.info["tip_position_m"]))
+        self.recorder.start_episode(
+            self.info["tip_position_m"], self._remaining(self._centerline, self.info["tip_position_m"])
+        )
         self.state, self.done, self._return, self._steps = TeleopState(), False, 0.0, 0
         self.episodes += 1
 
@@ -122,14 +124,24 @@ class TeleopSession:
         if len(self.summaries) == self.episodes:
             return  # already summarised (the episode ended before R or Q)
         info = self.info
-        self.summaries.append({
-            "episode": self.episodes - 1, "seed": self.seed + self.episodes - 1, "steps": info["step"],
-            "return": self._return, "success": bool(info["success"]), "diverged": bool(info["diverged"]),
-            "final_distance_m": info["target_distance_m"],
-        })
+        self.summaries.append(
+            {
+                "episode": self.episodes - 1,
+                "seed": self.seed + self.episodes - 1,
+                "steps": info["step"],
+                "return": self._return,
+                "success": bool(info["success"]),
+                "diverged": bool(info["diverged"]),
+                "final_distance_m": info["target_distance_m"],
+            }
+        )
 
     def status(self) -> str:
         info = self.info
         ended = "  (ended: R for a new episode)" if self.done else ""
-        return (f"episode {self.episodes}  step {info.get('step', 0)}  target {info.get('target_distance_m', 0) * 1e3:.1f} mm  "
-                f"force {info.get('mean_contact_force_n', 0):.2f} N  action {self.state.insertion:+.0f} {self.state.rotation:+.0f}{ended}")
+        return (
+            f"episode {self.episodes}  step {info.get('step', 0)}  "
+            f"target {info.get('target_distance_m', 0) * 1e3:.1f} mm  "
+            f"force {info.get('mean_contact_force_n', 0):.2f} N  "
+            f"action {self.state.insertion:+.0f} {self.state.rotation:+.0f}{ended}"
+        )

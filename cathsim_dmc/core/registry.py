@@ -48,5 +48,6 @@ def register_all() -> None:
     for task, aorta in pairs:
         name = env_id(task, aorta)
         if name not in gymnasium.registry:
-            gymnasium.register(id=name, entry_point=ENTRY_POINT,
-                               kwargs={"task": task, "aorta": aorta, "registered_id": name})
+            gymnasium.register(
+                id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "aorta": aorta, "registered_id": name}
+            )

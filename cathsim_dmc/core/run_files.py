@@ -111,8 +111,10 @@ def lock_folder(folder) -> Path:
                 if owner == pid:
                     return lock
                 if owner and _alive(owner):
-                    raise FolderInUse(f"{folder} is in use by another run (pid {owner}); "
-                                      f"choose another output folder or wait for that run to end") from None
+                    raise FolderInUse(
+                        f"{folder} is in use by another run (pid {owner}); "
+                        f"choose another output folder or wait for that run to end"
+                    ) from None
                 lock.unlink(missing_ok=True)  # its process is gone
                 continue
             atexit.register(unlock_folder, folder)

@@ -28,8 +28,7 @@ def resolve_asset(asset) -> Path:
         return path
     if str(asset) in available_aortas():
         return assets_root() / str(asset)
-    raise ValueError(
-        f"aorta={str(asset)!r} is neither a shipped aorta {list(available_aortas())} nor an asset folder")
+    raise ValueError(f"aorta={str(asset)!r} is neither a shipped aorta {list(available_aortas())} nor an asset folder")
 
 
 def aorta_label(aorta) -> str:

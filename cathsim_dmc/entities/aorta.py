@@ -18,15 +18,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import mujoco
+import numpy as np
 from dm_control import composer, mjcf
 
 from cathsim_dmc.anatomy import AortaAsset, load_asset
 from cathsim_dmc.anatomy.validate import open_end_plane
-from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.core.checks import check_parameters
 from cathsim_dmc.core.shipped import resolve_asset
+from cathsim_dmc.sim import geom_groups
 
 
 def moved_outward(pieces, distance_m: float) -> tuple:
@@ -108,11 +108,16 @@ class Aorta(composer.Entity):
         if wall not in WALLS:
             raise ValueError(f"wall={wall!r} is not a wall representation; choose one of {list(WALLS)}")
         if wall == "field" and hulls_in_mjcf:
-            raise ValueError("wall='field' (physics='fast_field') needs hulls_in_mjcf=False: its distance "
-                             "field goes into the compiled model through add_geoms (NavigationEnvironment does this); "
-                             "for the wall in the MJCF model use wall='prisms' (physics='fast')")
-        check_parameters("Aorta", non_negative=dict(friction=friction, contact_margin_m=contact_margin_m),
-                         finite=dict(solref=solref, solimp=solimp, rgba=rgba))
+            raise ValueError(
+                "wall='field' (physics='fast_field') needs hulls_in_mjcf=False: its distance "
+                "field goes into the compiled model through add_geoms (NavigationEnvironment does this); "
+                "for the wall in the MJCF model use wall='prisms' (physics='fast')"
+            )
+        check_parameters(
+            "Aorta",
+            non_negative=dict(friction=friction, contact_margin_m=contact_margin_m),
+            finite=dict(solref=solref, solimp=solimp, rgba=rgba),
+        )
         self.wall = wall
         if wall == "field":
             from cathsim_dmc.sim import wall_field
@@ -125,10 +130,15 @@ class Aorta(composer.Entity):
             raise ValueError(f"contact_margin_m={contact_margin_m!r} must be >= 0 (metres)")
         self.contact_margin_m = float(contact_margin_m)
         self._wall = dict(
-            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, condim=3,
+            contype=geom_groups.WALL_CONTYPE,
+            conaffinity=geom_groups.WALL_CONAFFINITY,
+            condim=3,
             margin=self.contact_margin_m,
-            friction=[friction, 0.005, 0.0001], solref=list(solref), solimp=list(solimp),
-            group=geom_groups.COLLISION, rgba=[0.5, 0.5, 0.5, 0.3],
+            friction=[friction, 0.005, 0.0001],
+            solref=list(solref),
+            solimp=list(solimp),
+            group=geom_groups.COLLISION,
+            rgba=[0.5, 0.5, 0.5, 0.3],
         )
         self._visual = dict(contype=0, conaffinity=0, group=geom_groups.VISUAL, rgba=list(rgba))
         self.hulls_in_mjcf = bool(hulls_in_mjcf)
@@ -139,12 +149,14 @@ class Aorta(composer.Entity):
                 mesh = root.asset.add("mesh", name=f"hull{i}", vertex=np.asarray(hull, dtype=float).ravel())
                 body.add("geom", name=f"hull{i}", type="mesh", mesh=mesh)
             visual = root.asset.add(
-                "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel())
+                "mesh", name="lumen", vertex=self._asset.visual_vertices.ravel(), face=self._asset.visual_faces.ravel()
+            )
             body.add("geom", name="lumen", type="mesh", mesh=visual, **self._visual)
         self._sites = {}
         for site_name, pos in {**self._asset.sites, "entry": self._asset.entry_position}.items():
             self._sites[site_name] = body.add(
-                "site", name=site_name, pos=pos, size=[0.0015], rgba=[0, 0.6, 1, 1], group=geom_groups.MARKER)
+                "site", name=site_name, pos=pos, size=[0.0015], rgba=[0, 0.6, 1, 1], group=geom_groups.MARKER
+            )
 
     @property
     def mjcf_model(self):
@@ -175,8 +187,10 @@ class Aorta(composer.Entity):
         placement = {}
         if body.name != spec.worldbody.name:
             if body.parent.name != spec.worldbody.name:
-                raise ValueError(f"aorta {self.name!r} is attached below body {body.parent.name!r}: attach it to "
-                                 f"the arena (the world body) so that its wall can go into the world body")
+                raise ValueError(
+                    f"aorta {self.name!r} is attached below body {body.parent.name!r}: attach it to "
+                    f"the arena (the world body) so that its wall can go into the world body"
+                )
             if np.any(body.pos != 0) or np.any(body.quat != [1, 0, 0, 0]):
                 placement = dict(pos=np.array(body.pos), quat=np.array(body.quat))
 
@@ -209,8 +223,10 @@ class Aorta(composer.Entity):
             offset = np.asarray(placement["pos"], dtype=float)
         pieces = [np.asarray(piece, dtype=float) for piece in self._asset.hulls]
         if any(piece.shape != (6, 3) for piece in pieces):
-            raise ValueError(f"aorta {self.name!r}: wall='field' builds on the asset's prisms (a lumen triangle and "
-                             f"its outward copy), and this asset has other wall pieces; use wall='prisms'")
+            raise ValueError(
+                f"aorta {self.name!r}: wall='field' builds on the asset's prisms (a lumen triangle and "
+                f"its outward copy), and this asset has other wall pieces; use wall='prisms'"
+            )
         lumen = np.asarray([piece[:3] for piece in pieces]) @ rotation.T + offset
         centre, outward, _ = self._open_end()
         cut = (rotation @ centre + offset, rotation @ outward)
@@ -237,15 +253,27 @@ class Aorta(composer.Entity):
         if self.wall == "field":
             from cathsim_dmc.sim import wall_field
 
-            wall = b"field wall %r %s" % ((wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M),
-                                          wall_field.source_digest().encode())
-        return b"".join([wall, repr((self._wall, self._visual)).encode(), pieces.tobytes(),
-                         asset.hull_offsets.tobytes(), asset.visual_vertices.tobytes(), asset.visual_faces.tobytes()])
+            wall = b"field wall %r %s" % (
+                (wall_field.FIELD_SPACING_M, wall_field.FIELD_BAND_M),
+                wall_field.source_digest().encode(),
+            )
+        return b"".join(
+            [
+                wall,
+                repr((self._wall, self._visual)).encode(),
+                pieces.tobytes(),
+                asset.hull_offsets.tobytes(),
+                asset.visual_vertices.tobytes(),
+                asset.visual_faces.tobytes(),
+            ]
+        )
 
     def initialize_episode(self, physics, random_state):
         if not self.hulls_in_mjcf and len(self.wall_geom_ids(physics)) == 0:
-            raise RuntimeError("Aorta(hulls_in_mjcf=False) has no wall in this physics: build the environment with "
-                               "NavigationEnvironment, or call aorta.add_geoms on the scene's spec")
+            raise RuntimeError(
+                "Aorta(hulls_in_mjcf=False) has no wall in this physics: build the environment with "
+                "NavigationEnvironment, or call aorta.add_geoms on the scene's spec"
+            )
 
     @property
     def asset(self) -> AortaAsset:
@@ -297,8 +325,10 @@ class Aorta(composer.Entity):
         centre, outward, _ = self._open_end()
         direction = self.entry_direction / np.linalg.norm(self.entry_direction)
         if float(-outward @ direction) < np.cos(np.radians(1.0)):
-            raise ValueError(f"aorta {self.name!r}: the open end (normal {outward.round(3).tolist()}) does not face "
-                             f"the entry direction {direction.round(3).tolist()}; an introducer cannot seal it")
+            raise ValueError(
+                f"aorta {self.name!r}: the open end (normal {outward.round(3).tolist()}) does not face "
+                f"the entry direction {direction.round(3).tolist()}; an introducer cannot seal it"
+            )
         entry = self.entry_position_m
         return entry + float((centre - entry) @ outward) / float(direction @ outward) * direction
 
@@ -315,8 +345,9 @@ class Aorta(composer.Entity):
     def _open_end(self):
         plane = open_end_plane(self._asset)
         if plane is None:
-            raise ValueError(f"aorta {self.name!r} has no open_end in its meta.json: rebuild or re-import it "
-                             f"with cathsim-aorta")
+            raise ValueError(
+                f"aorta {self.name!r} has no open_end in its meta.json: rebuild or re-import it with cathsim-aorta"
+            )
         return plane
 
     @property
@@ -339,8 +370,10 @@ class Aorta(composer.Entity):
         if self.wall == "field":
             ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}wall")]
             return np.asarray([i for i in ids if i >= 0], dtype=int)
-        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}hull{i}")
-               for i in range(self._asset.hull_count)]
+        ids = [
+            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}hull{i}")
+            for i in range(self._asset.hull_count)
+        ]
         return np.asarray([i for i in ids if i >= 0], dtype=int)
 
     def visual_geom_id(self, physics) -> int:

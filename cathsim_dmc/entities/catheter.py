@@ -52,8 +52,10 @@ class Catheter:
             check_number(f"Catheter {key}", getattr(self, key), 0.0, inclusive=False)
         check_number("Catheter inner_diameter_m", self.inner_diameter_m, 0.0)
         if not self.inner_diameter_m < self.outer_diameter_m:
-            raise ValueError(f"Catheter inner_diameter_m={self.inner_diameter_m} must be smaller than "
-                             f"outer_diameter_m={self.outer_diameter_m}")
+            raise ValueError(
+                f"Catheter inner_diameter_m={self.inner_diameter_m} must be smaller than "
+                f"outer_diameter_m={self.outer_diameter_m}"
+            )
         if not abs(check_number("Catheter curve_deg", self.curve_deg)) <= 180.0:
             raise ValueError(f"Catheter curve_deg={self.curve_deg!r} must lie in [-180, 180]")
 
@@ -137,12 +139,16 @@ class CatheterOverWire:
         # as for a beam piece with that rest curvature.
         curve_end_m = min(self.catheter.curve_length_m, outside_sheath_m)
         in_curve_m = np.clip(np.minimum(hi, curve_end_m) - np.maximum(lo, 0.0), 0.0, None)
-        curve_rad = np.where(self._bends_y, math.radians(self.catheter.curve_deg) * in_curve_m
-                             / self.catheter.curve_length_m, 0.0)
+        curve_rad = np.where(
+            self._bends_y, math.radians(self.catheter.curve_deg) * in_curve_m / self.catheter.curve_length_m, 0.0
+        )
         stiffness = self._k0 + k_catheter
         covered = k_catheter > 0
-        rest = np.where(covered, (self._k0 * self._ref0 + self.catheter.bending_stiffness_nm2 / span * curve_rad)
-                        / stiffness, self._ref0)
+        rest = np.where(
+            covered,
+            (self._k0 * self._ref0 + self.catheter.bending_stiffness_nm2 / span * curve_rad) / stiffness,
+            self._ref0,
+        )
         return stiffness, rest
 
     def apply(self, physics, tip_offset_m: float, sheath_from_m: float = np.inf) -> None:

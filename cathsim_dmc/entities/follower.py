@@ -41,10 +41,9 @@ import numpy as np
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
-from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.core.checks import check_parameters
 from cathsim_dmc.entities.observables import JointObservables
-
+from cathsim_dmc.sim import geom_groups
 
 
 class FollowerRobot(composer.Entity):
@@ -97,22 +96,33 @@ class FollowerRobot(composer.Entity):
           seal_thickness_m: thickness of the seal plate along the wire, in metres.
           name: model name.
         """
-        check_parameters("FollowerRobot", positive=dict(
-            wire_length_m=wire_length_m, stroke_m=stroke_m, max_insertion_speed_m_s=max_insertion_speed_m_s,
-            max_rotation_speed_rad_s=max_rotation_speed_rad_s, max_insertion_force_n=max_insertion_force_n,
-            wire_radius_m=wire_radius_m, servo_stiffness_n_m=servo_stiffness_n_m,
-            servo_stiffness_nm_rad=servo_stiffness_nm_rad, seal_half_width_m=seal_half_width_m),
+        check_parameters(
+            "FollowerRobot",
+            positive=dict(
+                wire_length_m=wire_length_m,
+                stroke_m=stroke_m,
+                max_insertion_speed_m_s=max_insertion_speed_m_s,
+                max_rotation_speed_rad_s=max_rotation_speed_rad_s,
+                max_insertion_force_n=max_insertion_force_n,
+                wire_radius_m=wire_radius_m,
+                servo_stiffness_n_m=servo_stiffness_n_m,
+                servo_stiffness_nm_rad=servo_stiffness_nm_rad,
+                seal_half_width_m=seal_half_width_m,
+            ),
             non_negative=dict(channel_clearance_m=channel_clearance_m),
-            finite=dict(initial_insertion_m=initial_insertion_m, channel_solref=channel_solref,
-                        channel_solimp=channel_solimp))
+            finite=dict(
+                initial_insertion_m=initial_insertion_m, channel_solref=channel_solref, channel_solimp=channel_solimp
+            ),
+        )
         if stroke_m >= wire_length_m - initial_insertion_m:
             raise ValueError(
                 f"stroke_m={stroke_m} must be shorter than the wire behind the outlet "
                 f"({wire_length_m - initial_insertion_m} m) or the carriage hits the outlet"
             )
         if not sheath_depth_m >= 0 or not seal_thickness_m > 0:
-            raise ValueError(f"sheath_depth_m={sheath_depth_m} must be >= 0 and seal_thickness_m="
-                             f"{seal_thickness_m} > 0 (metres)")
+            raise ValueError(
+                f"sheath_depth_m={sheath_depth_m} must be >= 0 and seal_thickness_m={seal_thickness_m} > 0 (metres)"
+            )
         self._mjcf_root = mjcf.RootElement(model=name)
         self._mjcf_root.compiler.angle = "radian"
         self.max_insertion_speed_m_s = float(max_insertion_speed_m_s)
@@ -126,31 +136,62 @@ class FollowerRobot(composer.Entity):
         base_z = initial_insertion_m - wire_length_m
         rail_len = wire_length_m + 0.04
         wb = root.worldbody
-        wb.add("geom", name="rail", type="box", size=[0.01, 0.004, rail_len / 2],
-               pos=[0, -0.012, base_z + rail_len / 2 - 0.04])
+        wb.add(
+            "geom",
+            name="rail",
+            type="box",
+            size=[0.01, 0.004, rail_len / 2],
+            pos=[0, -0.012, base_z + rail_len / 2 - 0.04],
+        )
 
         self._carriage = wb.add("body", name="carriage", pos=[0, 0, base_z])
         self._insertion = self._carriage.add(
-            "joint", name="insertion", type="slide", axis=[0, 0, 1], range=[0, stroke_m],
-            limited=True, damping=5.0, armature=1.0,
+            "joint",
+            name="insertion",
+            type="slide",
+            axis=[0, 0, 1],
+            range=[0, stroke_m],
+            limited=True,
+            damping=5.0,
+            armature=1.0,
         )
-        self._carriage.add("geom", name="carriage", type="box", size=[0.012, 0.004, 0.01], pos=[0, -0.008, -0.012], mass=0.2)
+        self._carriage.add(
+            "geom", name="carriage", type="box", size=[0.012, 0.004, 0.01], pos=[0, -0.008, -0.012], mass=0.2
+        )
         self._platform = self._carriage.add("body", name="wire_platform")
         self._rotation = self._platform.add(
-            "joint", name="rotation", type="hinge", axis=[0, 0, 1], limited=False, damping=0.05, armature=0.01,
+            "joint",
+            name="rotation",
+            type="hinge",
+            axis=[0, 0, 1],
+            limited=False,
+            damping=0.05,
+            armature=0.01,
         )
-        self._platform.add("geom", name="wire_platform", type="cylinder", size=[0.008, 0.004], pos=[0, 0, -0.005], mass=0.05)
+        self._platform.add(
+            "geom", name="wire_platform", type="cylinder", size=[0.008, 0.004], pos=[0, 0, -0.005], mass=0.05
+        )
         self._wire_site = self._platform.add("site", name="wire_attachment", pos=[0, 0, 0], size=[0.001])
 
         # Catheter rotary platform and the two clamps (CathBot layout; not actuated here).
         cath = wb.add("body", name="catheter_platform", pos=[0, 0, base_z - 0.03])
-        self._catheter_rotation = cath.add("joint", name="catheter_rotation", type="hinge", axis=[0, 0, 1], damping=1.0, armature=0.01)
+        self._catheter_rotation = cath.add(
+            "joint", name="catheter_rotation", type="hinge", axis=[0, 0, 1], damping=1.0, armature=0.01
+        )
         cath.add("geom", name="catheter_platform", type="cylinder", size=[0.008, 0.004], mass=0.05)
         self._clamps = []
         for side, x in (("left", 0.006), ("right", -0.006)):
             clamp = self._carriage.add("body", name=f"clamp_{side}", pos=[x, 0, 0.008])
-            joint = clamp.add("joint", name=f"clamp_{side}", type="slide", axis=[1, 0, 0], range=[-0.003, 0.003],
-                              limited=True, damping=5.0, armature=0.01)
+            joint = clamp.add(
+                "joint",
+                name=f"clamp_{side}",
+                type="slide",
+                axis=[1, 0, 0],
+                range=[-0.003, 0.003],
+                limited=True,
+                damping=5.0,
+                armature=0.01,
+            )
             clamp.add("geom", name=f"clamp_{side}", type="box", size=[0.002, 0.003, 0.002], mass=0.01)
             self._clamps.append(joint)
 
@@ -163,17 +204,29 @@ class FollowerRobot(composer.Entity):
         self.channel_half_width_m = float(half)  # of the square bore
         self.channel_outer_half_width_m = float(half + 2 * wall)  # of the walls' square outline
         introducer = dict(
-            contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY,
-            solref=list(channel_solref), solimp=list(channel_solimp),
+            contype=geom_groups.WALL_CONTYPE,
+            conaffinity=geom_groups.WALL_CONAFFINITY,
+            solref=list(channel_solref),
+            solimp=list(channel_solimp),
             # A lubricated introducer: frictionless (priority makes its condim win
             # over the wire's), so pinching in the channel does not eat the drive force.
-            priority=1, condim=1)
+            priority=1,
+            condim=1,
+        )
         self._guide_geoms = []
         for i, (dx, dy) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
             size = [wall, half + 2 * wall, channel_len / 2] if dx else [half + 2 * wall, wall, channel_len / 2]
-            self._guide_geoms.append(wb.add(
-                "geom", name=f"guide{i}", type="box", size=size, pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
-                rgba=[0.45, 0.45, 0.5, 0.5], **introducer))
+            self._guide_geoms.append(
+                wb.add(
+                    "geom",
+                    name=f"guide{i}",
+                    type="box",
+                    size=size,
+                    pos=[dx * (half + wall), dy * (half + wall), base_z / 2],
+                    rgba=[0.45, 0.45, 0.5, 0.5],
+                    **introducer,
+                )
+            )
 
         # Seal plate: a square plate with a square hole the bore's size, its vessel-side
         # face sheath_depth_m behind the outlet. Its four pieces reach in to the bore,
@@ -187,33 +240,61 @@ class FollowerRobot(composer.Entity):
         if seal_half_width_m is not None:
             outer = float(seal_half_width_m)
             if outer <= self.channel_outer_half_width_m:
-                raise ValueError(f"seal_half_width_m={seal_half_width_m} must exceed the sheath's outer "
-                                 f"half-width {self.channel_outer_half_width_m:.4g} m")
+                raise ValueError(
+                    f"seal_half_width_m={seal_half_width_m} must exceed the sheath's outer "
+                    f"half-width {self.channel_outer_half_width_m:.4g} m"
+                )
             z = -sheath_depth_m - seal_thickness_m / 2
             t = seal_thickness_m / 2
             side = (outer - half) / 2  # half-size of a piece beside the bore
-            pieces = (([side, outer, t], [half + side, 0, z]), ([side, outer, t], [-(half + side), 0, z]),
-                      ([half, side, t], [0, half + side, z]), ([half, side, t], [0, -(half + side), z]))
+            pieces = (
+                ([side, outer, t], [half + side, 0, z]),
+                ([side, outer, t], [-(half + side), 0, z]),
+                ([half, side, t], [0, half + side, z]),
+                ([half, side, t], [0, -(half + side), z]),
+            )
             for i, (size, pos) in enumerate(pieces):
-                self._seal_geoms.append(wb.add(
-                    "geom", name=f"seal{i}", type="box", size=size, pos=pos, group=geom_groups.COLLISION,
-                    rgba=[0.45, 0.45, 0.5, 0.3], **introducer))
+                self._seal_geoms.append(
+                    wb.add(
+                        "geom",
+                        name=f"seal{i}",
+                        type="box",
+                        size=size,
+                        pos=pos,
+                        group=geom_groups.COLLISION,
+                        rgba=[0.45, 0.45, 0.5, 0.3],
+                        **introducer,
+                    )
+                )
 
         # Integrated-velocity servos: d(setpoint)/dt = ctrl (joint units per second).
         self._insertion_actuator = root.actuator.add(
-            "general", name="insertion", joint=self._insertion, dyntype="integrator",
-            gainprm=[servo_stiffness_n_m], biastype="affine",
+            "general",
+            name="insertion",
+            joint=self._insertion,
+            dyntype="integrator",
+            gainprm=[servo_stiffness_n_m],
+            biastype="affine",
             biasprm=[0, -servo_stiffness_n_m, -2 * np.sqrt(servo_stiffness_n_m * 1.2)],
-            ctrllimited=True, ctrlrange=[-max_insertion_speed_m_s, max_insertion_speed_m_s],
-            actlimited=True, actrange=[0, stroke_m],
-            forcelimited=True, forcerange=[-max_insertion_force_n, max_insertion_force_n],
+            ctrllimited=True,
+            ctrlrange=[-max_insertion_speed_m_s, max_insertion_speed_m_s],
+            actlimited=True,
+            actrange=[0, stroke_m],
+            forcelimited=True,
+            forcerange=[-max_insertion_force_n, max_insertion_force_n],
         )
         self._rotation_actuator = root.actuator.add(
-            "general", name="rotation", joint=self._rotation, dyntype="integrator",
-            gainprm=[servo_stiffness_nm_rad], biastype="affine",
+            "general",
+            name="rotation",
+            joint=self._rotation,
+            dyntype="integrator",
+            gainprm=[servo_stiffness_nm_rad],
+            biastype="affine",
             biasprm=[0, -servo_stiffness_nm_rad, -2 * np.sqrt(servo_stiffness_nm_rad * 0.012)],
-            ctrllimited=True, ctrlrange=[-max_rotation_speed_rad_s, max_rotation_speed_rad_s],
-            actlimited=True, actrange=[-1e3, 1e3],
+            ctrllimited=True,
+            ctrlrange=[-max_rotation_speed_rad_s, max_rotation_speed_rad_s],
+            actlimited=True,
+            actrange=[-1e3, 1e3],
         )
 
     def _build_observables(self):

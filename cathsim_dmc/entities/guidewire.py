@@ -24,12 +24,11 @@ import numpy as np
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
-from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.core.checks import check_number, check_parameters
 from cathsim_dmc.entities.observables import JointObservables
+from cathsim_dmc.sim import geom_groups
 
 TIP_SHAPES = ("straight", "angled", "j")
-
 
 
 def second_moment_of_area(diameter_m: float) -> float:
@@ -69,7 +68,8 @@ class Guidewire(composer.Entity):
         core_diameter_m: float | None = 0.5e-3,  # nitinol core under the polymer jacket (assumed)
         n_segments: int = 24,  # 14 mm shaft pieces: beam error < 0.3% with midpoint joints
         n_tip_segments: int = 10,  # 1.5 mm tip pieces carry the shaped curve
-        youngs_modulus_pa: float = 40e9,  # nitinol, austenite 40-75 GPa (Duerig et al. 1999); low end for a jacketed core
+        # nitinol, austenite 40-75 GPa (Duerig et al. 1999); low end for a jacketed core
+        youngs_modulus_pa: float = 40e9,
         tip_youngs_modulus_pa: float = 8e9,  # tapered tip core: 5x softer than the shaft
         tip_length_m: float = 0.015,  # a 20 mm bent tip spans a branch and rides its wall (expert: 93/96 vs 95/96)
         tip_shape: str = "angled",
@@ -132,15 +132,22 @@ class Guidewire(composer.Entity):
         if tip_shape not in TIP_SHAPES:
             raise ValueError(f"tip_shape={tip_shape!r} is not one of {TIP_SHAPES}")
         # A non-positive modulus or density compiles, and fails only at the first physics step.
-        for key, value in (("length_m", length_m), ("diameter_m", diameter_m),
-                           ("youngs_modulus_pa", youngs_modulus_pa), ("tip_youngs_modulus_pa", tip_youngs_modulus_pa),
-                           ("density_kg_m3", density_kg_m3), ("physics_timestep_s", physics_timestep_s)):
+        for key, value in (
+            ("length_m", length_m),
+            ("diameter_m", diameter_m),
+            ("youngs_modulus_pa", youngs_modulus_pa),
+            ("tip_youngs_modulus_pa", tip_youngs_modulus_pa),
+            ("density_kg_m3", density_kg_m3),
+            ("physics_timestep_s", physics_timestep_s),
+        ):
             check_number(f"Guidewire {key}", value, 0.0, inclusive=False)
         # (MuJoCo reads a negative solref as stiffness and damping: only finiteness is checked)
-        check_parameters("Guidewire", positive=dict(core_diameter_m=core_diameter_m, mass_scale=mass_scale),
-                         non_negative=dict(friction=friction, damping_ratio=damping_ratio),
-                         finite=dict(tip_angle_deg=tip_angle_deg, contact_solref=contact_solref,
-                                     contact_solimp=contact_solimp))
+        check_parameters(
+            "Guidewire",
+            positive=dict(core_diameter_m=core_diameter_m, mass_scale=mass_scale),
+            non_negative=dict(friction=friction, damping_ratio=damping_ratio),
+            finite=dict(tip_angle_deg=tip_angle_deg, contact_solref=contact_solref, contact_solimp=contact_solimp),
+        )
         check_number("Guidewire n_segments", n_segments, 2, whole=True)
         check_number("Guidewire n_tip_segments", n_tip_segments, 1, whole=True)
         if not 0 < tip_length_m < length_m:
@@ -232,13 +239,21 @@ class Guidewire(composer.Entity):
             parent = body
         self._rest_qpos = np.array([j.springref for j in self._joints], dtype=float)
         self._tip_site = parent.add(
-            "site", name="tip", pos=[0, 0, seg_lengths[-1]], size=[self.radius_m * 1.2], rgba=[1, 0, 0, 1],
+            "site",
+            name="tip",
+            pos=[0, 0, seg_lengths[-1]],
+            size=[self.radius_m * 1.2],
+            rgba=[1, 0, 0, 1],
             group=geom_groups.MARKER,
         )
         # Where the tip's pre-shaped curve begins: a better steering reference than the
         # tip itself, whose offset is its own bend.
         self._tip_base_site = self._segments[n_segments].add(
-            "site", name="tip_base", pos=[0, 0, 0], size=[self.radius_m], rgba=[0, 1, 0, 1],
+            "site",
+            name="tip_base",
+            pos=[0, 0, 0],
+            size=[self.radius_m],
+            rgba=[0, 1, 0, 1],
             group=geom_groups.MARKER,
         )
         self.segment_lengths_m = np.array(seg_lengths)

@@ -56,8 +56,11 @@ def place(tree: CenterlineTree, point_m, target: str) -> tuple[str, float]:
     along_m = tree.geodesic_from_location(location, target)
     # Past the point where two centerlines part, both tubes still cover the arch around the
     # branch's mouth: a tip is in the branch once it is clear of the target line's tube.
-    if (name != target and s > tree.junction_arclength_m(name, target)
-            and tree.lines[target].locate(point_m)[1] > IN_BRANCH_M):
+    if (
+        name != target
+        and s > tree.junction_arclength_m(name, target)
+        and tree.lines[target].locate(point_m)[1] > IN_BRANCH_M
+    ):
         where = BRANCH + name.upper()
     elif depth > OFF_CENTERLINES_M:
         where = OFF_CENTERLINES
@@ -85,15 +88,20 @@ def episode_ends(arrays: dict, tree_for: Callable[[str], CenterlineTree]) -> lis
         places = [place(tree, p, target) for p in arrays["tip_position_m"][rows]]
         in_branch = [where.startswith(BRANCH) for where, _ in places]
         entries = [i for i, inside in enumerate(in_branch) if inside and (i == 0 or not in_branch[i - 1])]
-        branches = tuple(dict.fromkeys(places[i][0][len(BRANCH):] for i in entries))
+        branches = tuple(dict.fromkeys(places[i][0][len(BRANCH) :] for i in entries))
         success = bool(arrays["success"][rows].any())
-        ends.append(EpisodeEnd(
-            episode=e, success=success, ended=REACHED if success else places[-1][0], other_branches=branches,
-            entered_last_branch_step=int(arrays["step"][rows][entries[-1]]) if entries else None,
-            closest_to_target_mm=1e3 * float(arrays["target_distance_m"][rows].min()),
-            end_along_vessel_mm=1e3 * places[-1][1],
-            largest_wall_force_n=float(forces[rows].max()),
-        ))
+        ends.append(
+            EpisodeEnd(
+                episode=e,
+                success=success,
+                ended=REACHED if success else places[-1][0],
+                other_branches=branches,
+                entered_last_branch_step=int(arrays["step"][rows][entries[-1]]) if entries else None,
+                closest_to_target_mm=1e3 * float(arrays["target_distance_m"][rows].min()),
+                end_along_vessel_mm=1e3 * places[-1][1],
+                largest_wall_force_n=float(forces[rows].max()),
+            )
+        )
     return ends
 
 
@@ -126,21 +134,27 @@ def failures_table(ends) -> str:
     groups = {}
     for end in failed:
         groups.setdefault(end.ended, []).append(end)
-    lines = [f"Failed episodes: {len(failed)} of {len(ends)}, by where the tip ended.", "",
-             "| Ended | Episodes | Entered that branch at step | Had been in another branch "
-             "| Closest to the target (mm) | At the end, along the vessel (mm) | Largest wall force (N) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Failed episodes: {len(failed)} of {len(ends)}, by where the tip ended.",
+        "",
+        "| Ended | Episodes | Entered that branch at step | Had been in another branch "
+        "| Closest to the target (mm) | At the end, along the vessel (mm) | Largest wall force (N) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for where, group in sorted(groups.items(), key=lambda item: (-len(item[1]), item[0])):
         ended_in_branch = where.startswith(BRANCH)
-        own = {where[len(BRANCH):]} if ended_in_branch else set()
+        own = {where[len(BRANCH) :]} if ended_in_branch else set()
         visited = [set(e.other_branches) - own for e in group]
         names = ", ".join(sorted(set().union(*visited)))
         count = sum(1 for v in visited if v)
-        cells = [where, str(len(group)),
-                 _span([e.entered_last_branch_step for e in group], "{:d}") if ended_in_branch else "-",
-                 f"{count} of {len(group)} ({names})" if count else "-",
-                 _span([e.closest_to_target_mm for e in group], "{:.1f}"),
-                 _span([e.end_along_vessel_mm for e in group], "{:.0f}"),
-                 _span([e.largest_wall_force_n for e in group], "{:.1f}")]
+        cells = [
+            where,
+            str(len(group)),
+            _span([e.entered_last_branch_step for e in group], "{:d}") if ended_in_branch else "-",
+            f"{count} of {len(group)} ({names})" if count else "-",
+            _span([e.closest_to_target_mm for e in group], "{:.1f}"),
+            _span([e.end_along_vessel_mm for e in group], "{:.0f}"),
+            _span([e.largest_wall_force_n for e in group], "{:.1f}"),
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

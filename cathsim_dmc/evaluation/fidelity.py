@@ -20,12 +20,12 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from cathsim_dmc.sim import geom_groups
-from cathsim_dmc.sim import physics as cs_physics
-from cathsim_dmc.sim.arena import OperatingArena
 from cathsim_dmc.entities import FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import CatheterOverWire
 from cathsim_dmc.entities.guidewire import second_moment_of_area
+from cathsim_dmc.sim import geom_groups
+from cathsim_dmc.sim import physics as cs_physics
+from cathsim_dmc.sim.arena import OperatingArena
 
 
 def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSICS) -> mjcf.Physics:
@@ -37,15 +37,27 @@ def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSIC
     return mjcf.Physics.from_mjcf_model(root)
 
 
-def cantilever_deflection(n_segments: int, physics_setting=cs_physics.DEFAULT_PHYSICS, length_m: float = 0.1,
-                          force_n: float = 1e-3, youngs_modulus_pa: float = 40e9,
-                          catheter=None) -> tuple[float, float, bool]:
+def cantilever_deflection(
+    n_segments: int,
+    physics_setting=cs_physics.DEFAULT_PHYSICS,
+    length_m: float = 0.1,
+    force_n: float = 1e-3,
+    youngs_modulus_pa: float = 40e9,
+    catheter=None,
+) -> tuple[float, float, bool]:
     """(measured, analytic tip deflection in metres, came to rest) of a uniform straight wire
     under a constant transverse tip load, damped to rest; with `catheter` (a `Catheter`)
     covering all of it, the two bending together (analytic: E I of both summed)."""
-    wire = Guidewire(length_m=length_m, n_segments=n_segments, n_tip_segments=1, tip_length_m=length_m / n_segments,
-                     youngs_modulus_pa=youngs_modulus_pa, tip_youngs_modulus_pa=youngs_modulus_pa,
-                     tip_shape="straight", damping_ratio=20.0)  # overdamped: settles sooner, same static answer
+    wire = Guidewire(
+        length_m=length_m,
+        n_segments=n_segments,
+        n_tip_segments=1,
+        tip_length_m=length_m / n_segments,
+        youngs_modulus_pa=youngs_modulus_pa,
+        tip_youngs_modulus_pa=youngs_modulus_pa,
+        tip_shape="straight",
+        damping_ratio=20.0,
+    )  # overdamped: settles sooner, same static answer
     physics = bare_wire_physics(wire, physics_setting)
     stiffness_nm2 = youngs_modulus_pa * second_moment_of_area(wire.core_diameter_m)
     if catheter is not None:
@@ -59,8 +71,15 @@ def cantilever_deflection(n_segments: int, physics_setting=cs_physics.DEFAULT_PH
     at_rest = False
     for step in range(30_000):
         data.qfrc_applied[:] = 0
-        mujoco.mj_applyFT(model, data, np.array([force_n, 0, 0]), np.zeros(3), data.site_xpos[tip_site].copy(),
-                          tip_body, data.qfrc_applied)
+        mujoco.mj_applyFT(
+            model,
+            data,
+            np.array([force_n, 0, 0]),
+            np.zeros(3),
+            data.site_xpos[tip_site].copy(),
+            tip_body,
+            data.qfrc_applied,
+        )
         mujoco.mj_step(model, data)
         if step > 100 and np.abs(data.qvel).max() < 1e-8:
             at_rest = True
@@ -95,8 +114,9 @@ class WallPush:
 WALL_FACE_M = 0.035  # where `wall_push`'s wall face lies along the insertion axis, metres
 
 
-def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS, push_n: float = 1.0,
-              steps: int = 1000) -> WallPush:
+def wall_push(
+    margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS, push_n: float = 1.0, steps: int = 1000
+) -> WallPush:
     """A solid wire driven along +z at the robot's force limit `push_n` into a flat wall
     (faces at z = 0.035 m; a wall with a contact margin is moved back by it, as the vessel
     wall is), read after `steps` physics steps."""
@@ -108,8 +128,13 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
     arena.attach(robot)  # insertion along world +z; the tip starts 25 mm past the outlet
     robot.attach(wire, robot.wire_attachment_site)
     arena.mjcf_model.option.gravity = [0, 0, 0]
-    contact = dict(contype=geom_groups.WALL_CONTYPE, conaffinity=geom_groups.WALL_CONAFFINITY, solref=[0.004, 1],
-                   solimp=[0.99, 0.999, 0.0005, 0.5, 2], margin=margin_m)
+    contact = dict(
+        contype=geom_groups.WALL_CONTYPE,
+        conaffinity=geom_groups.WALL_CONAFFINITY,
+        solref=[0.004, 1],
+        solimp=[0.99, 0.999, 0.0005, 0.5, 2],
+        margin=margin_m,
+    )
     root = arena.mjcf_model
     if cs_physics.physics_settings(physics_setting).wall == "field":
         # The same face as a distance field (`Aorta(wall="field")`'s contact test): a
@@ -122,7 +147,9 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
         corners = np.array([[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]])
         face = np.column_stack([corners, np.full(4, WALL_FACE_M)])
         field = wall_field.build_field(np.stack([face[[0, 1, 2]], face[[0, 2, 3]]]), shift_m=margin_m)
-        box = [[x, y, z] for x in (-0.02, 0.02) for y in (-0.02, 0.02) for z in (WALL_FACE_M - 0.003, WALL_FACE_M + 0.003)]
+        box = [
+            [x, y, z] for x in (-0.02, 0.02) for y in (-0.02, 0.02) for z in (WALL_FACE_M - 0.003, WALL_FACE_M + 0.003)
+        ]
         spec = mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
         spec.add_numeric(name="wall", data=field, size=len(field))
         spec.add_mesh(name="wall").uservert = np.ravel(box)
@@ -132,8 +159,9 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
         physics = mjcf.Physics.from_model(wrapper.MjModel(spec.compile()))
         wall_id = mujoco.mj_name2id(physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, "wall")
     else:
-        wall = root.worldbody.add("geom", type="box", size=[0.02, 0.02, 0.002],
-                                  pos=[0, 0, WALL_FACE_M + 0.002 + margin_m], **contact)
+        wall = root.worldbody.add(
+            "geom", type="box", size=[0.02, 0.02, 0.002], pos=[0, 0, WALL_FACE_M + 0.002 + margin_m], **contact
+        )
         physics = mjcf.Physics.from_mjcf_model(root)
         wall_id = int(physics.bind(wall).element_id)
     wire.initialize_episode(physics, None)
@@ -145,8 +173,12 @@ def wall_push(margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS,
     is_wall = np.zeros(physics.model.ngeom, bool)
     is_wall[wall_id] = True  # the guide channel is not the wall
     contacts = cs_physics.wire_contacts(physics, is_wire, is_vessel_geom=is_wall)
-    return WallPush(total_n=float(contacts.total_n), net_n=contacts.forces_n.sum(axis=0), contacts=int(contacts.count),
-                    tip_end_m=float(physics.bind(wire.tip_site).xpos[2] + wire.radius_m))
+    return WallPush(
+        total_n=float(contacts.total_n),
+        net_n=contacts.forces_n.sum(axis=0),
+        contacts=int(contacts.count),
+        tip_end_m=float(physics.bind(wire.tip_site).xpos[2] + wire.radius_m),
+    )
 
 
 @dataclass
@@ -160,8 +192,14 @@ class InsertionResponse:
     diverged: bool
 
 
-def insertion_response(physics_setting=cs_physics.DEFAULT_PHYSICS, aorta: str = "type1", insert_steps: int = 50,
-                       retract_steps: int = 15, rotation: float = 0.2, seed: int = 0) -> InsertionResponse:
+def insertion_response(
+    physics_setting=cs_physics.DEFAULT_PHYSICS,
+    aorta: str = "type1",
+    insert_steps: int = 50,
+    retract_steps: int = 15,
+    rotation: float = 0.2,
+    seed: int = 0,
+) -> InsertionResponse:
     """Full-speed insertion from the start pose with a slow rotation (`cathsim-bench`'s
     motion: up the descending aorta and into the arch, in wall contact), then retraction:
     how closely the tip (measured along the vessel, `Navigate.slack_m`) follows the carriage."""
@@ -177,8 +215,10 @@ def insertion_response(physics_setting=cs_physics.DEFAULT_PHYSICS, aorta: str = 
         carriage, slack = info.insertion_m, info.slack_m
         for _ in range(steps):
             if ended:  # another step would start a new episode
-                raise RuntimeError(f"the episode ended after {task.step_count} steps (success, escape or divergence): "
-                                   "the insertion response needs the whole motion")
+                raise RuntimeError(
+                    f"the episode ended after {task.step_count} steps (success, escape or divergence): "
+                    "the insertion response needs the whole motion"
+                )
             ended = env.step(np.asarray(action, np.float32)).last()
             info = task.step_info(env.physics)
             slacks.append(info.slack_m)
@@ -187,6 +227,12 @@ def insertion_response(physics_setting=cs_physics.DEFAULT_PHYSICS, aorta: str = 
         carriage_advance = info.insertion_m - carriage
         ratios.append((carriage_advance - (info.slack_m - slack)) / carriage_advance)  # slack: carriage - tip
     env.close()
-    return InsertionResponse(insert_ratio=float(ratios[0]), retract_ratio=float(ratios[1]),
-                             max_slack_m=float(np.max(np.abs(slacks))), final_slack_m=float(slacks[-1]),
-                             tip_m=np.asarray(info.tip_position_m, dtype=float).copy(), escaped=escaped, diverged=diverged)
+    return InsertionResponse(
+        insert_ratio=float(ratios[0]),
+        retract_ratio=float(ratios[1]),
+        max_slack_m=float(np.max(np.abs(slacks))),
+        final_slack_m=float(slacks[-1]),
+        tip_m=np.asarray(info.tip_position_m, dtype=float).copy(),
+        escaped=escaped,
+        diverged=diverged,
+    )

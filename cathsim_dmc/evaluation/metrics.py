@@ -67,11 +67,12 @@ def remaining_centerline_length_m(centerline_m, position_m) -> float:
     closest = a + t[:, None] * ab
     i = int(np.argmin(np.linalg.norm(closest - p, axis=1)))
     segment_lengths = np.linalg.norm(ab, axis=1)
-    return float((1.0 - t[i]) * segment_lengths[i] + segment_lengths[i + 1:].sum())
+    return float((1.0 - t[i]) * segment_lengths[i] + segment_lengths[i + 1 :].sum())
 
 
-def episode_metrics(start_tip_m, tip_positions_m, contact_forces_n, success: bool,
-                    optimal_path_m: float) -> EpisodeMetrics:
+def episode_metrics(
+    start_tip_m, tip_positions_m, contact_forces_n, success: bool, optimal_path_m: float
+) -> EpisodeMetrics:
     """Metrics of one episode.
 
     Args:
@@ -109,9 +110,15 @@ def trajectory_metrics(arrays: dict) -> list:
         rows = arrays["episode"] == e
         if not rows.any():
             continue
-        episodes.append(episode_metrics(
-            arrays["start_tip_position_m"][e], arrays["tip_position_m"][rows], forces[rows],
-            bool(arrays["success"][rows].any()), float(arrays["optimal_path_length_m"][e])))
+        episodes.append(
+            episode_metrics(
+                arrays["start_tip_position_m"][e],
+                arrays["tip_position_m"][rows],
+                forces[rows],
+                bool(arrays["success"][rows].any()),
+                float(arrays["optimal_path_length_m"][e]),
+            )
+        )
     return episodes
 
 
@@ -120,9 +127,14 @@ def summarize(episodes) -> dict:
     if not episodes:
         raise ValueError("no episodes to summarize")
     table = [asdict(e) for e in episodes]
-    return {key: {"mean": float(np.mean([row[key] for row in table])),
-                  "std": float(np.std([row[key] for row in table])),
-                  "n": len(table)} for key in METRIC_COLUMNS}
+    return {
+        key: {
+            "mean": float(np.mean([row[key] for row in table])),
+            "std": float(np.std([row[key] for row in table])),
+            "n": len(table),
+        }
+        for key in METRIC_COLUMNS
+    }
 
 
 def markdown_table(rows) -> str:

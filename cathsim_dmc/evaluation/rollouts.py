@@ -45,8 +45,17 @@ def check_report_options(episodes: int, video_format: str = "gif", video_size: i
         raise ValueError(f"video_format={video_format!r}; choose one of {list(VIDEO_FORMATS)}")
 
 
-def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_frames=None, video_size=240,
-                 show_progress: bool = True, log_episodes: bool = True):
+def run_episodes(
+    env,
+    policy,
+    episodes: int,
+    seed: int,
+    recorder=None,
+    video_frames=None,
+    video_size=240,
+    show_progress: bool = True,
+    log_episodes: bool = True,
+):
     """Roll out `policy` for `episodes` episodes (episode i reset with `seed + i`); returns
     per-episode summaries (steps, return, success, ...).
 
@@ -67,10 +76,13 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
             observation, info = env.reset(seed=seed + episode)
             if recorder is not None:
                 centerline = env.task.aorta.centerline(env.task.target_name)  # this episode's anatomy
-                recorder.start_episode(info["tip_position_m"],
-                                       remaining_centerline_length_m(centerline, info["tip_position_m"]), observation,
-                                       aorta=info["aorta"] if random_anatomy else None,
-                                       target_position_m=env.task.target_position_m)
+                recorder.start_episode(
+                    info["tip_position_m"],
+                    remaining_centerline_length_m(centerline, info["tip_position_m"]),
+                    observation,
+                    aorta=info["aorta"] if random_anatomy else None,
+                    target_position_m=env.task.target_position_m,
+                )
             total, done = 0.0, False
             while not done:
                 action = policy(observation, env)
@@ -82,11 +94,18 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
                 progress.update(max_steps - info["step"] + 1 if done else 1)
                 if video_frames is not None and episode == 0:
                     video_frames.append(video_frame(env.physics, video_size, cache=cameras))
-            summaries.append({
-                "episode": episode, "seed": seed + episode, "steps": info["step"], "return": total,
-                "success": bool(info["success"]), "diverged": bool(info["diverged"]),
-                "final_distance_m": info["target_distance_m"], **({"aorta": info["aorta"]} if random_anatomy else {}),
-            })
+            summaries.append(
+                {
+                    "episode": episode,
+                    "seed": seed + episode,
+                    "steps": info["step"],
+                    "return": total,
+                    "success": bool(info["success"]),
+                    "diverged": bool(info["diverged"]),
+                    "final_distance_m": info["target_distance_m"],
+                    **({"aorta": info["aorta"]} if random_anatomy else {}),
+                }
+            )
             if log_episodes:
                 log.info("episode %d: %s", episode, summaries[-1])
     except KeyboardInterrupt as interrupt:  # the caller may keep the finished episodes
@@ -96,8 +115,7 @@ def run_episodes(env, policy, episodes: int, seed: int, recorder=None, video_fra
     return summaries
 
 
-def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None,
-                 tree_for=None) -> dict:
+def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None, tree_for=None) -> dict:
     """metrics.json, metrics.md, path.png (unless `asset` is None) and forces.png for one
     policy on one (task, aorta). With `tree_for` (`episode_ends.trees_of(env)`) the report
     also says where each episode ended, and metrics.md groups the failures by it."""
@@ -120,8 +138,15 @@ def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | Non
     rows = [arrays["episode"] == e for e in range(len(arrays["start_tip_position_m"]))]
     title = f"{label['policy']} on {target}/{label['aorta']}: success {summary['success_pct']['mean']:.0f}%"
     if asset is not None:
-        plots.path_plot(asset, target, arrays["start_tip_position_m"], [arrays["tip_position_m"][r] for r in rows],
-                        [bool(arrays["success"][r].any()) for r in rows], out_dir / "path.png", title)
+        plots.path_plot(
+            asset,
+            target,
+            arrays["start_tip_position_m"],
+            [arrays["tip_position_m"][r] for r in rows],
+            [bool(arrays["success"][r].any()) for r in rows],
+            out_dir / "path.png",
+            title,
+        )
     forces = wall_forces_n(arrays)  # the step-mean wall force (end of step for older files)
     plots.force_plots([forces[r] for r in rows], out_dir / "forces.png", title=title)
     return report
@@ -166,9 +191,20 @@ def combine_reports(folder) -> str:
     return table
 
 
-def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out_dir, video: bool = True,
-                    video_size: int = 240, video_format: str = "gif", save_observations: bool = False,
-                    show_progress: bool = True, label: dict | None = None) -> dict:
+def evaluate_policy(
+    env,
+    policy,
+    policy_name: str,
+    episodes: int,
+    seed: int,
+    out_dir,
+    video: bool = True,
+    video_size: int = 240,
+    video_format: str = "gif",
+    save_observations: bool = False,
+    show_progress: bool = True,
+    label: dict | None = None,
+) -> dict:
     """Evaluate `policy` on `env` (a CathSimEnv) and write the full report into `out_dir`.
 
     `label` adds fields to the report (cathsim-train adds its training seed).
@@ -180,11 +216,21 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     task = env.task
-    recorder = TrajectoryRecorder(task.target_name, env.aorta_name, task.target_position_m,
-                                  policy=policy_name, record_observations=save_observations)
+    recorder = TrajectoryRecorder(
+        task.target_name,
+        env.aorta_name,
+        task.target_position_m,
+        policy=policy_name,
+        record_observations=save_observations,
+    )
     frames = [] if video else None
-    label = {"task": task.target_name, "aorta": env.aorta_name, "policy": policy_name,
-             "physics": task.physics_setting, **(label or {})}
+    label = {
+        "task": task.target_name,
+        "aorta": env.aorta_name,
+        "policy": policy_name,
+        "physics": task.physics_setting,
+        **(label or {}),
+    }
     tree_for = trees_of(env)
     try:
         summaries = run_episodes(env, policy, episodes, seed, recorder, frames, video_size, show_progress)
@@ -198,8 +244,10 @@ def evaluate_policy(env, policy, policy_name: str, episodes: int, seed: int, out
         recorder.keep_episodes(len(summaries))
         label.update(partial=True, episodes_finished=len(summaries), episodes_requested=episodes)
         _write_results(recorder, frames, video_format, task, label, out_dir, summaries, tree_for)
-        raise Interrupted(f"evaluation stopped after {len(summaries)} of {episodes} episodes; their report "
-                          f"(labelled partial) is in {out_dir}") from None
+        raise Interrupted(
+            f"evaluation stopped after {len(summaries)} of {episodes} episodes; their report "
+            f"(labelled partial) is in {out_dir}"
+        ) from None
     return _write_results(recorder, frames, video_format, task, label, out_dir, summaries, tree_for)
 
 

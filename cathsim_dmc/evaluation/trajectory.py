@@ -59,9 +59,16 @@ import numpy as np
 SCHEMA_VERSION = 2
 FORCE_KEY = "mean_contact_force_n"  # the wall force of a step, as the metrics read it
 _PER_STEP = {
-    "episode": np.int32, "step": np.int32, "action": np.float32, "reward": np.float32,
-    "tip_position_m": np.float32, "contact_force_n": np.float32, "target_distance_m": np.float32,
-    "success": bool, "terminated": bool, "truncated": bool,
+    "episode": np.int32,
+    "step": np.int32,
+    "action": np.float32,
+    "reward": np.float32,
+    "tip_position_m": np.float32,
+    "contact_force_n": np.float32,
+    "target_distance_m": np.float32,
+    "success": bool,
+    "terminated": bool,
+    "truncated": bool,
 }
 
 
@@ -83,8 +90,14 @@ class TrajectoryRecorder:
     episode_aortas: list = field(default_factory=list)
     episode_targets: list = field(default_factory=list)
 
-    def start_episode(self, tip_position_m, optimal_path_length_m: float, observation=None,
-                      aorta: str | None = None, target_position_m=None) -> None:
+    def start_episode(
+        self,
+        tip_position_m,
+        optimal_path_length_m: float,
+        observation=None,
+        aorta: str | None = None,
+        target_position_m=None,
+    ) -> None:
         """Begin an episode; `aorta` and `target_position_m` name its anatomy and target
         when they change between episodes (aorta=random)."""
         self.starts.append(np.asarray(tip_position_m, dtype=np.float32))
@@ -103,10 +116,16 @@ class TrajectoryRecorder:
             for key, value in observation.items():
                 self.observations.setdefault(key, []).append(_stored(value))
         values = {
-            "episode": len(self.starts) - 1, "step": info["step"], "action": action, "reward": reward,
-            "tip_position_m": info["tip_position_m"], "contact_force_n": info["contact_force_n"],
-            "target_distance_m": info["target_distance_m"], "success": info["success"],
-            "terminated": terminated, "truncated": truncated,
+            "episode": len(self.starts) - 1,
+            "step": info["step"],
+            "action": action,
+            "reward": reward,
+            "tip_position_m": info["tip_position_m"],
+            "contact_force_n": info["contact_force_n"],
+            "target_distance_m": info["target_distance_m"],
+            "success": info["success"],
+            "terminated": terminated,
+            "truncated": truncated,
         }
         for key, value in values.items():
             self.rows[key].append(value)
@@ -119,8 +138,13 @@ class TrajectoryRecorder:
         for values in (*self.rows.values(), *self.observations.values()):
             del values[rows:]
         del self.mean_forces[rows:]
-        for values in (self.starts, self.optimal_paths, self.episode_aortas, self.episode_targets,
-                       *self.start_observations.values()):
+        for values in (
+            self.starts,
+            self.optimal_paths,
+            self.episode_aortas,
+            self.episode_targets,
+            *self.start_observations.values(),
+        ):
             del values[count:]
 
     def arrays(self) -> dict:
@@ -135,7 +159,9 @@ class TrajectoryRecorder:
             out["episode_aorta"] = np.asarray(self.episode_aortas, dtype=np.str_)
             out["episode_target_position_m"] = np.stack(self.episode_targets).reshape(-1, 3)
         out.update(
-            schema_version=np.int32(SCHEMA_VERSION), task=np.str_(self.task), aorta=np.str_(self.aorta),
+            schema_version=np.int32(SCHEMA_VERSION),
+            task=np.str_(self.task),
+            aorta=np.str_(self.aorta),
             policy=np.str_(self.policy),
             start_tip_position_m=np.asarray(self.starts, dtype=np.float32).reshape(-1, 3),
             optimal_path_length_m=np.asarray(self.optimal_paths, dtype=np.float32),

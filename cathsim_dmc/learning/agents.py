@@ -18,11 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS
-from cathsim_dmc.core.shipped import assets_root
 from cathsim_dmc.control.policies import BUILTIN_POLICIES
 from cathsim_dmc.control.policies import make_policy as make_builtin_policy
-from cathsim_dmc.core.run_files import (POLICY_FILE, is_temporary, load_normalizer,  # noqa: F401  (public here too)
-                                   normalizer_path)
+from cathsim_dmc.core.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path  # noqa: F401  (public here too)
+from cathsim_dmc.core.shipped import assets_root
 
 
 class CheckpointPolicy:
@@ -38,8 +37,15 @@ class CheckpointPolicy:
     :param path: the file it was loaded from (None: a model in memory)
     """
 
-    def __init__(self, model, obs_preset: str, image_options: dict | None = None, env_options: dict | None = None,
-                 normalizer=None, path=None):
+    def __init__(
+        self,
+        model,
+        obs_preset: str,
+        image_options: dict | None = None,
+        env_options: dict | None = None,
+        normalizer=None,
+        path=None,
+    ):
         self.model = model
         self.obs_preset = obs_preset
         self.image_options = dict(image_options or {})
@@ -113,7 +119,9 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
 
             model = SAC.load(model_path, device="cpu")
             average = getattr(model, "_actor_average", None)
-            if average is not None:  # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
+            if (
+                average is not None
+            ):  # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
                 model.actor.load_state_dict(average)
         elif algo == "bc":
             from cathsim_dmc.learning.supervised.bc import load_bc_policy
@@ -127,8 +135,9 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
     if info.get("normalize_observations"):
         stats = normalizer_path(model_path)
         if not stats.is_file():
-            raise FileNotFoundError(f"{model_path} was trained with normalised observations but {stats.name} "
-                                    f"is missing beside it")
+            raise FileNotFoundError(
+                f"{model_path} was trained with normalised observations but {stats.name} is missing beside it"
+            )
         try:
             normalizer = load_normalizer(stats)
         except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
@@ -144,8 +153,10 @@ def trained_env_options(model_path, env_options: dict | None) -> dict:
     for name in [name for name in options if name in REMOVED_TASK_ARGUMENTS]:
         value = options.pop(name)
         if value is not None:
-            raise ValueError(f"{model_path} was trained with {name}={value!r}, an option "
-                             f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for")
+            raise ValueError(
+                f"{model_path} was trained with {name}={value!r}, an option "
+                f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for"
+            )
     return options
 
 
@@ -169,8 +180,12 @@ def shipped_targets(folder: Path | None = None) -> tuple:
 def _spaces(meta: dict):
     from gymnasium import spaces
 
-    observation = spaces.Dict({key: spaces.Box(-np.inf, np.inf, shape=tuple(shape), dtype=np.float32)
-                               for key, shape in meta["observation_shapes"].items()})
+    observation = spaces.Dict(
+        {
+            key: spaces.Box(-np.inf, np.inf, shape=tuple(shape), dtype=np.float32)
+            for key, shape in meta["observation_shapes"].items()
+        }
+    )
     action = spaces.Box(-1.0, 1.0, shape=(int(meta["action_size"]),), dtype=np.float32)
     return observation, action
 
@@ -182,8 +197,14 @@ def _policy(meta: dict):
     from cathsim_dmc.learning.networks import ENNExtractor
 
     observation, action = _spaces(meta)
-    return MultiInputPolicy(observation, action, lr_schedule=lambda _: 0.0, net_arch=list(meta["net_arch"]),
-                            features_extractor_class=ENNExtractor, share_features_extractor=False)
+    return MultiInputPolicy(
+        observation,
+        action,
+        lr_schedule=lambda _: 0.0,
+        net_arch=list(meta["net_arch"]),
+        features_extractor_class=ENNExtractor,
+        share_features_extractor=False,
+    )
 
 
 class PretrainedActor:
@@ -209,9 +230,9 @@ def load_pretrained(target: str, folder: Path | None = None):
     if not weights.is_file():
         raise ValueError(f"no pretrained navigator for task={target!r}; shipped: {list(shipped_targets(folder))}")
     meta = json.loads(meta_path.read_text())
-    return CheckpointPolicy(PretrainedActor(weights, meta), meta["obs"], meta.get("image_options"),
-                            meta.get("env_options"), path=weights)
-
+    return CheckpointPolicy(
+        PretrainedActor(weights, meta), meta["obs"], meta.get("image_options"), meta.get("env_options"), path=weights
+    )
 
 
 def make_policy(name: str, seed: int = 0, task: str | None = None):
@@ -226,5 +247,7 @@ def make_policy(name: str, seed: int = 0, task: str | None = None):
         return load_pretrained(task)
     if Path(name).exists():
         return load_checkpoint_policy(name)
-    raise ValueError(f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, "
-                     f"{PRETRAINED!r}, nor a checkpoint path")
+    raise ValueError(
+        f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, "
+        f"{PRETRAINED!r}, nor a checkpoint path"
+    )

@@ -26,9 +26,9 @@ from typing import Callable
 
 import numpy as np
 
-from cathsim_dmc.learning.datasets import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 from cathsim_dmc.core.run_files import remove_temporaries, write_atomic
 from cathsim_dmc.evaluation.trajectory import SCHEMA_VERSION, TrajectoryRecorder, action_rows
+from cathsim_dmc.learning.datasets import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
 
 log = logging.getLogger("cathsim-collect")
 
@@ -36,8 +36,17 @@ SHARD_FORMAT = "shard_{:05d}.npz"
 COLLECT_OBS = "enn"  # every modality: the image, the mask and the joint state
 # Settings that must match when a run continues an existing dataset (the episode count
 # may grow: the new episodes go into new shards).
-_SAME_ON_RESUME = ("task", "aorta", "policy", "seed", "episodes_per_shard", "obs", "image_options", "task_options",
-                   "action_noise_std")
+_SAME_ON_RESUME = (
+    "task",
+    "aorta",
+    "policy",
+    "seed",
+    "episodes_per_shard",
+    "obs",
+    "image_options",
+    "task_options",
+    "action_noise_std",
+)
 _RESUME_DEFAULTS = {"action_noise_std": 0.0}  # settings older datasets did not record
 
 
@@ -118,14 +127,16 @@ def enn_feature_fn(model, observation_keys):
 def collection_policy(name: str, seed: int, task: str | None = None):
     """(policy, feature_fn or None, label, image options, env options) for a built-in name or
     a checkpoint; a checkpoint's image and env options are the ones it was trained with."""
-    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
     from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
     policy = make_policy(name, seed=seed, task=task)
     if not isinstance(policy, CheckpointPolicy):
         return policy, None, name, {}, {}
     # The dataset records every modality; the agent sees only what it was trained on.
-    keys = sorted(OBSERVATION_PRESETS[policy.obs_preset].enabled | set(policy.env_options.get("extra_observations", ())))
+    keys = sorted(
+        OBSERVATION_PRESETS[policy.obs_preset].enabled | set(policy.env_options.get("extra_observations", ()))
+    )
 
     def act(observation, env):
         return policy({k: observation[k] for k in keys}, env)
@@ -141,25 +152,44 @@ def shard_info(path) -> dict | None:
                 return None
             episodes = int(data["start_tip_position_m"].shape[0])
             episode, terminated = data["episode"], data["terminated"]
-            return {"file": Path(path).name, "first_episode": int(data["first_episode"]), "episodes": episodes,
-                    "samples": int(len(episode)), "successes": int(len(np.unique(episode[terminated])))}
+            return {
+                "file": Path(path).name,
+                "first_episode": int(data["first_episode"]),
+                "episodes": episodes,
+                "samples": int(len(episode)),
+                "successes": int(len(np.unique(episode[terminated]))),
+            }
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # truncated by a kill: recorded again
         return None
 
 
 def _write_manifest(out_dir: Path, settings: dict, shards: list) -> dict:
     manifest = {
-        "format": "cathsim-collect", "schema_version": SCHEMA_VERSION, **settings,
-        "episodes": sum(s["episodes"] for s in shards), "samples": sum(s["samples"] for s in shards),
-        "successes": sum(s["successes"] for s in shards), "shards": shards,
+        "format": "cathsim-collect",
+        "schema_version": SCHEMA_VERSION,
+        **settings,
+        "episodes": sum(s["episodes"] for s in shards),
+        "samples": sum(s["samples"] for s in shards),
+        "successes": sum(s["successes"] for s in shards),
+        "shards": shards,
     }
     write_atomic(out_dir / MANIFEST, lambda tmp: tmp.write_text(json.dumps(manifest, indent=2)))
     return manifest
 
 
-def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes_per_shard: int, seed: int,
-            task_options: dict | None = None, image_options: dict | None = None, show_progress: bool = True,
-            action_noise_std: float = 0.0) -> dict:
+def collect(
+    out_dir,
+    task: str,
+    aorta: str,
+    policy: str,
+    episodes: int,
+    episodes_per_shard: int,
+    seed: int,
+    task_options: dict | None = None,
+    image_options: dict | None = None,
+    show_progress: bool = True,
+    action_noise_std: float = 0.0,
+) -> dict:
     """Collect (or continue collecting) `episodes` episodes into shards under `out_dir`.
 
     With `action_noise_std` > 0 the executed action is the policy's plus seeded Gaussian
@@ -184,17 +214,28 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
     # A trained agent drives with what it was trained with (insertion limit, extra
     # observations), as cathsim-eval evaluates it.
     task_options = {**(task_options or {}), **policy_options}
-    settings = {"task": task, "aorta": aorta, "policy": label, "seed": seed, "episodes_per_shard": episodes_per_shard,
-                "obs": COLLECT_OBS, "image_options": images, "task_options": task_options,
-                "feature_z": feature_fn is not None, "action_noise_std": float(action_noise_std)}
+    settings = {
+        "task": task,
+        "aorta": aorta,
+        "policy": label,
+        "seed": seed,
+        "episodes_per_shard": episodes_per_shard,
+        "obs": COLLECT_OBS,
+        "image_options": images,
+        "task_options": task_options,
+        "feature_z": feature_fn is not None,
+        "action_noise_std": float(action_noise_std),
+    }
     manifest_path = out_dir / MANIFEST
     if manifest_path.is_file():
         old = read_manifest(manifest_path)
         for key in _SAME_ON_RESUME:
             # Compared as JSON holds them (a tuple of extra observations reads back as a list).
             if old.get(key, _RESUME_DEFAULTS.get(key)) != json.loads(json.dumps(settings[key])):
-                raise ValueError(f"{out_dir} holds a dataset collected with {key}={old.get(key)!r}, not "
-                                 f"{settings[key]!r}; continue it with the same settings or choose another out folder")
+                raise ValueError(
+                    f"{out_dir} holds a dataset collected with {key}={old.get(key)!r}, not "
+                    f"{settings[key]!r}; continue it with the same settings or choose another out folder"
+                )
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out_dir)  # half-written shards of a killed collection
 
@@ -210,8 +251,13 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
         return manifest
 
     env = CathSimEnv(task=task, aorta=aorta, obs=COLLECT_OBS, **images, **task_options)
-    bar = tqdm(total=episodes, initial=sum(d["episodes"] for d in done.values()), unit="episode",
-               desc="collecting", disable=not show_progress)
+    bar = tqdm(
+        total=episodes,
+        initial=sum(d["episodes"] for d in done.values()),
+        unit="episode",
+        desc="collecting",
+        disable=not show_progress,
+    )
     try:
         for index, count in enumerate(counts):
             if index in done:
@@ -221,8 +267,15 @@ def collect(out_dir, task: str, aorta: str, policy: str, episodes: int, episodes
             if action_noise_std > 0:  # seeded per shard, so a resumed run repeats it
                 shard_policy = NoisyPolicy(act, action_noise_std, (seed, first))
                 clean = lambda p=shard_policy: p.last_clean  # noqa: E731
-            recorder = FeatureRecorder(task, aorta, env.task.target_position_m, policy=label,
-                                       record_observations=True, feature_fn=feature_fn, clean_action_fn=clean)
+            recorder = FeatureRecorder(
+                task,
+                aorta,
+                env.task.target_position_m,
+                policy=label,
+                record_observations=True,
+                feature_fn=feature_fn,
+                clean_action_fn=clean,
+            )
             run_episodes(env, shard_policy, count, seed + first, recorder, show_progress=False)
             path = out_dir / SHARD_FORMAT.format(index)
             recorder.save(path, compress=False, first_episode=np.int32(first))

@@ -39,11 +39,15 @@ def expand_paths(paths) -> list:
         if path.is_file():
             files.append(path)
         elif path.is_dir():
-            found = _manifest_shards(path) or sorted(p for p in path.glob(SHARD_GLOB) if not is_temporary(p)) \
+            found = (
+                _manifest_shards(path)
+                or sorted(p for p in path.glob(SHARD_GLOB) if not is_temporary(p))
                 or sorted(path.glob("trajectories.npz"))
+            )
             if not found:
-                raise FileNotFoundError(f"{path} holds no dataset ({SHARD_GLOB} or trajectories.npz); "
-                                        f"collect one with cathsim-collect")
+                raise FileNotFoundError(
+                    f"{path} holds no dataset ({SHARD_GLOB} or trajectories.npz); collect one with cathsim-collect"
+                )
             files.extend(found)
         else:
             raise FileNotFoundError(f"no dataset at {path}")
@@ -58,8 +62,10 @@ def read_manifest(path) -> dict:
     try:
         return json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path} is not a readable {MANIFEST} ({type(error).__name__}: {error}); "
-                         f"delete it and run cathsim-collect on the folder again (finished shards are kept)") from error
+        raise ValueError(
+            f"{path} is not a readable {MANIFEST} ({type(error).__name__}: {error}); "
+            f"delete it and run cathsim-collect on the folder again (finished shards are kept)"
+        ) from error
 
 
 def _manifest_shards(folder: Path) -> list:
@@ -81,8 +87,11 @@ def read_keys(path, keys) -> dict:
                 raise ValueError(f"{path} has trajectory schema {version}; this version reads schema {SCHEMA_VERSION}")
             missing = [k for k in keys if k not in data.files]
             if missing:
-                hint = (" (record observations with save_observations=true, or collect with cathsim-collect)"
-                        if any(k.startswith(("obs_", "start_")) for k in missing) else "")
+                hint = (
+                    " (record observations with save_observations=true, or collect with cathsim-collect)"
+                    if any(k.startswith(("obs_", "start_")) for k in missing)
+                    else ""
+                )
                 raise ValueError(f"{path} has no {missing}{hint}; it has {sorted(data.files)}")
             return {key: data[key] for key in keys}
     except (OSError, EOFError, TypeError, AttributeError, zipfile.BadZipFile) as error:
@@ -96,7 +105,9 @@ def read_keys(path, keys) -> dict:
 def _unreadable(path, error) -> ValueError:
     # NumPy reads a file that is no .npz archive (a CSV, say) as a pickle, and refuses that
     reason = "not an .npz archive" if "pickle" in str(error) else f"{type(error).__name__}: {error}"
-    return ValueError(f"{path} is not a readable trajectory file ({reason}); cathsim-eval and cathsim-collect write them")
+    return ValueError(
+        f"{path} is not a readable trajectory file ({reason}); cathsim-eval and cathsim-collect write them"
+    )
 
 
 def has_keys(paths, keys) -> bool:
@@ -150,8 +161,9 @@ def load_arrays(paths, keys, before_action: bool = False) -> dict:
     out = {key: np.concatenate(values) for key, values in parts.items()}
     out["episode"] = np.concatenate(episodes)
     if len(out["episode"]) == 0:
-        raise ValueError(f"the dataset {[str(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]} "
-                         f"has no samples")
+        raise ValueError(
+            f"the dataset {[str(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]} has no samples"
+        )
     return out
 
 

@@ -36,9 +36,12 @@ JOINT_FEATURES = 128
 def image_encoder(channels: int, height: int, width: int, features: int = IMAGE_FEATURES) -> nn.Module:
     """The paper's CNN for one image modality (uint8 input scaled to [0, 1] by the caller)."""
     conv = nn.Sequential(
-        nn.Conv2d(channels, 32, kernel_size=8, stride=4), nn.ReLU(),
-        nn.Conv2d(32, 64, kernel_size=4, stride=2), nn.ReLU(),
-        nn.Conv2d(64, 64, kernel_size=3, stride=1), nn.ReLU(),
+        nn.Conv2d(channels, 32, kernel_size=8, stride=4),
+        nn.ReLU(),
+        nn.Conv2d(32, 64, kernel_size=4, stride=2),
+        nn.ReLU(),
+        nn.Conv2d(64, 64, kernel_size=3, stride=1),
+        nn.ReLU(),
         nn.Flatten(),
     )
     with torch.no_grad():
@@ -83,8 +86,15 @@ class LayerNormCritic(ContinuousCritic):
         super().__init__(**kwargs)
         action_dim = int(np.prod(kwargs["action_space"].shape))
         for idx in range(len(self.q_networks)):
-            q_net = nn.Sequential(*create_mlp(kwargs["features_dim"] + action_dim, 1, kwargs["net_arch"],
-                                              kwargs.get("activation_fn", nn.ReLU), post_linear_modules=[nn.LayerNorm]))
+            q_net = nn.Sequential(
+                *create_mlp(
+                    kwargs["features_dim"] + action_dim,
+                    1,
+                    kwargs["net_arch"],
+                    kwargs.get("activation_fn", nn.ReLU),
+                    post_linear_modules=[nn.LayerNorm],
+                )
+            )
             self.add_module(f"qf{idx}", q_net)
             self.q_networks[idx] = q_net
 

@@ -18,9 +18,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from cathsim_dmc.learning.agents import (  # noqa: F401
+    POLICY_FOLDER,
+    PRETRAINED,
+    PretrainedActor,
+    load_pretrained,
+    policy_files,
+    shipped_targets,
+)
 
-from cathsim_dmc.learning.agents import (POLICY_FOLDER, PRETRAINED, PretrainedActor, load_pretrained,  # noqa: F401
-                                 policy_files, shipped_targets)
 
 def export_actor(checkpoint, target: str, card: str, folder: Path | None = None, trained: dict | None = None) -> Path:
     """Write the actor of a cathsim-train `checkpoint` (a .zip or a run folder: the policy

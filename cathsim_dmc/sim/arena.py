@@ -10,7 +10,7 @@ about the patient's vertical axis towards the patient's left (`lao_camera_axes`)
 from __future__ import annotations
 
 import numpy as np
-from dm_control import composer, mjcf
+from dm_control import composer
 
 from cathsim_dmc.sim.physics import DEFAULT_PHYSICS, PhysicsSettings, physics_settings
 
@@ -22,8 +22,13 @@ BLOOD_VISCOSITY_PA_S = 0.0035  # whole blood at high shear, 3.5-4 mPa s
 class OperatingArena(composer.Arena):
     """Empty scene with lights, a top (AP) and a side (lateral) camera."""
 
-    def _build(self, name: str = "operating_room", timestep_s: float = PHYSICS_TIMESTEP_S,
-               blood_drag: bool = False, physics: str | PhysicsSettings = DEFAULT_PHYSICS):
+    def _build(
+        self,
+        name: str = "operating_room",
+        timestep_s: float = PHYSICS_TIMESTEP_S,
+        blood_drag: bool = False,
+        physics: str | PhysicsSettings = DEFAULT_PHYSICS,
+    ):
         """Builds the scene.
 
         Args:
@@ -45,7 +50,9 @@ class OperatingArena(composer.Arena):
         # at stiff servos); elliptic cones: friction forces read out directly and
         # more accurate than pyramids.
         root.option.set_attributes(
-            timestep=timestep_s, integrator="implicitfast", cone="elliptic",
+            timestep=timestep_s,
+            integrator="implicitfast",
+            cone="elliptic",
             gravity=[0, 0, -9.81],
         )
         # One contact per wire-wall pair instead of ~1.4: the convex wall prisms are
@@ -58,21 +65,29 @@ class OperatingArena(composer.Arena):
         if blood_drag:
             # implicitfast would differentiate the fluid forces every step (measured 9x
             # slower); Euler keeps joint damping implicit and costs the same as before.
-            root.option.set_attributes(density=BLOOD_DENSITY_KG_M3, viscosity=BLOOD_VISCOSITY_PA_S,
-                                       integrator="Euler")
+            root.option.set_attributes(density=BLOOD_DENSITY_KG_M3, viscosity=BLOOD_VISCOSITY_PA_S, integrator="Euler")
         # Room for hundreds of wall contacts (the default 24 MB overflows in a jammed wire).
         root.size.memory = "128M"
         root.visual.quality.shadowsize = 0  # no shadow maps: they double software-GL cost
         root.visual.map.znear = 0.001
         root.visual.headlight.set_attributes(ambient=[0.5, 0.5, 0.5], diffuse=[0.5, 0.5, 0.5], specular=[0, 0, 0])
         root.visual.rgba.haze = [0, 0, 0, 0]
-        root.worldbody.add("light", name="front", pos=[0, 0, 1], dir=[0, 0, -1], directional=True,
-                           castshadow=False, diffuse=[0.4, 0.4, 0.4])
-        self._top = root.worldbody.add("camera", name="top", pos=[0, 0, 1], quat=[1, 0, 0, 0],
-                                       projection="orthographic", fovy=0.3)
+        root.worldbody.add(
+            "light",
+            name="front",
+            pos=[0, 0, 1],
+            dir=[0, 0, -1],
+            directional=True,
+            castshadow=False,
+            diffuse=[0.4, 0.4, 0.4],
+        )
+        self._top = root.worldbody.add(
+            "camera", name="top", pos=[0, 0, 1], quat=[1, 0, 0, 0], projection="orthographic", fovy=0.3
+        )
         # Looking along -x: camera -z axis = world -x, camera up (+y) = world +y.
-        self._side = root.worldbody.add("camera", name="side", pos=[1, 0, 0], xyaxes=[0, 0, -1, 0, 1, 0],
-                                        projection="orthographic", fovy=0.3)
+        self._side = root.worldbody.add(
+            "camera", name="side", pos=[1, 0, 0], xyaxes=[0, 0, -1, 0, 1, 0], projection="orthographic", fovy=0.3
+        )
 
     @property
     def top_camera(self):
@@ -117,8 +132,7 @@ def lao_camera_axes(lao_deg: float):
     (towards the camera): world +x, +y, +z turned by `lao_deg` about +y, so that the
     camera sits at (sin, 0, cos) of the angle, anterior and to the patient's left."""
     a = np.radians(float(lao_deg))
-    return (np.array([np.cos(a), 0.0, -np.sin(a)]), np.array([0.0, 1.0, 0.0]),
-            np.array([np.sin(a), 0.0, np.cos(a)]))
+    return (np.array([np.cos(a), 0.0, -np.sin(a)]), np.array([0.0, 1.0, 0.0]), np.array([np.sin(a), 0.0, np.cos(a)]))
 
 
 def lao_camera_quat(lao_deg: float) -> np.ndarray:

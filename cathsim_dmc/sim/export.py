@@ -138,7 +138,9 @@ def export_scene(env, out_dir) -> Path:
     physics = env.physics
     keyframe = ET.SubElement(scene_root, "keyframe")
     values = {"qpos": physics.data.qpos, "qvel": physics.data.qvel, "ctrl": physics.data.ctrl, "act": physics.data.act}
-    ET.SubElement(keyframe, "key", name=START_KEY, **{k: " ".join(repr(float(x)) for x in v) for k, v in values.items() if v.size})
+    ET.SubElement(
+        keyframe, "key", name=START_KEY, **{k: " ".join(repr(float(x)) for x in v) for k, v in values.items() if v.size}
+    )
     ET.indent(scene_root, space="  ")
     scene = out_dir / SCENE_FILE
     ET.ElementTree(scene_root).write(scene, encoding="unicode")

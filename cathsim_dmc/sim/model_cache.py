@@ -33,8 +33,9 @@ def model_cache_dir() -> pathlib.Path:
     return cache_root().parent / "models"
 
 
-def compile_model(mjcf_root, add_geoms: Callable[[mujoco.MjSpec], None], key: bytes,
-                  cache: bool = True) -> mujoco.MjModel:
+def compile_model(
+    mjcf_root, add_geoms: Callable[[mujoco.MjSpec], None], key: bytes, cache: bool = True
+) -> mujoco.MjModel:
     """Compiles `mjcf_root` with `add_geoms(spec)` applied; `key` identifies what it adds."""
     xml = mjcf_root.to_xml_string()
     assets = mjcf_root.get_assets()

@@ -30,8 +30,10 @@ def compile_in_mujoco(asset: AortaAsset) -> float:
     ff = " ".join(str(int(x)) for x in asset.visual_faces.ravel())
     meshes.append(f'<mesh name="lumen" vertex="{vv}" face="{ff}"/>')
     geoms.append('<geom type="mesh" mesh="lumen" contype="0" conaffinity="0" group="1"/>')
-    xml = (f"<mujoco><asset>{''.join(meshes)}</asset><worldbody><body name=\"aorta\">"
-           f"{''.join(geoms)}</body></worldbody></mujoco>")
+    xml = (
+        f'<mujoco><asset>{"".join(meshes)}</asset><worldbody><body name="aorta">'
+        f"{''.join(geoms)}</body></worldbody></mujoco>"
+    )
     t0 = time.perf_counter()
     model = mujoco.MjModel.from_xml_string(xml)
     seconds = time.perf_counter() - t0
@@ -58,5 +60,6 @@ def validate_and_compile(asset, **options) -> ValidationReport:
         compile_seconds = compile_in_mujoco(asset)
     except Exception as exc:  # noqa: BLE001 - reported as a problem
         problems.append(f"MuJoCo could not compile the asset: {exc}")
-    return dataclasses.replace(report, compile_seconds=compile_seconds, problems=problems,
-                               seconds=time.perf_counter() - t0)
+    return dataclasses.replace(
+        report, compile_seconds=compile_seconds, problems=problems, seconds=time.perf_counter() - t0
+    )

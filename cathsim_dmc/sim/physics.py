@@ -65,11 +65,29 @@ class PhysicsSettings:
 # environment's speed; not the default: the default training recipe did worse under it
 # on three seeds (docs/model.md). All keep the elliptic cones, implicitfast integrator
 # and timestep set by the arena and the wire.
-_PGS = dict(solver="PGS", iterations=10, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
-            jacobian="dense", noslip_iterations=0, noslip_tolerance=0.0, sleep=True)
+_PGS = dict(
+    solver="PGS",
+    iterations=10,
+    tolerance=1e-8,
+    ls_iterations=50,
+    ls_tolerance=0.01,
+    jacobian="dense",
+    noslip_iterations=0,
+    noslip_tolerance=0.0,
+    sleep=True,
+)
 PHYSICS_SETTINGS = {
-    "accurate": PhysicsSettings(solver="Newton", iterations=100, tolerance=1e-8, ls_iterations=50, ls_tolerance=0.01,
-                                jacobian="auto", noslip_iterations=5, noslip_tolerance=0.0, sleep=False),
+    "accurate": PhysicsSettings(
+        solver="Newton",
+        iterations=100,
+        tolerance=1e-8,
+        ls_iterations=50,
+        ls_tolerance=0.01,
+        jacobian="auto",
+        noslip_iterations=5,
+        noslip_tolerance=0.0,
+        sleep=False,
+    ),
     "fast": PhysicsSettings(**_PGS, wall="prisms"),
     "fast_field": PhysicsSettings(**_PGS, wall="field"),
 }
@@ -118,9 +136,9 @@ def _wire_contact_rows(data, is_wire_geom: np.ndarray, is_vessel_geom: np.ndarra
     """(geom pairs, geom1-is-wire, keep) over ``data.contact[:ncon]``: the contacts
     between a wire geom and a non-wire (vessel, if given) geom that have constraint rows."""
     contact = data.contact
-    geom = contact.geom[:data.ncon]
+    geom = contact.geom[: data.ncon]
     wire1 = is_wire_geom[geom[:, 0]]
-    keep = (wire1 ^ is_wire_geom[geom[:, 1]]) & (contact.efc_address[:data.ncon] >= 0)
+    keep = (wire1 ^ is_wire_geom[geom[:, 1]]) & (contact.efc_address[: data.ncon] >= 0)
     if is_vessel_geom is not None:
         keep &= is_vessel_geom[geom[:, 0]] | is_vessel_geom[geom[:, 1]]
     return geom, wire1, keep
@@ -132,8 +150,8 @@ def _local_forces(data, keep: np.ndarray) -> np.ndarray:
     Elliptic cones (the arena's setting): a contact's rows are its normal, then its
     tangential forces. A frictionless contact (dim 1) has only the normal row.
     """
-    address = data.contact.efc_address[:data.ncon][keep]
-    dim = data.contact.dim[:data.ncon][keep]
+    address = data.contact.efc_address[: data.ncon][keep]
+    dim = data.contact.dim[: data.ncon][keep]
     local = np.zeros((len(address), 3))
     local[:, 0] = data.efc_force[address]
     has_friction = dim >= 3
@@ -143,8 +161,9 @@ def _local_forces(data, keep: np.ndarray) -> np.ndarray:
     return local
 
 
-def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
-                  is_vessel_geom: np.ndarray | None = None) -> ContactForces:
+def wire_contacts(
+    physics, is_wire_geom: np.ndarray, recompute: bool = True, is_vessel_geom: np.ndarray | None = None
+) -> ContactForces:
     """Contact forces between wire geoms and other geoms.
 
     Args:
@@ -163,14 +182,14 @@ def wire_contacts(physics, is_wire_geom: np.ndarray, recompute: bool = True,
     geom, wire1, keep = _wire_contact_rows(data, is_wire_geom, is_vessel_geom)
     if not keep.any():
         return ContactForces(empty, empty, np.zeros(0, dtype=int))
-    frame = data.contact.frame[:data.ncon][keep].reshape(-1, 3, 3)
+    frame = data.contact.frame[: data.ncon][keep].reshape(-1, 3, 3)
     forces = np.einsum("nij,ni->nj", frame, _local_forces(data, keep))
     # The contact normal points from geom1 to geom2: make every force the one acting on
     # the non-wire geom (the vessel), whichever side the wire is.
     sign = np.where(wire1[keep], 1.0, -1.0)
     forces *= sign[:, None]
     wire_ids = np.where(wire1[keep], geom[keep, 0], geom[keep, 1])
-    return ContactForces(forces, data.contact.pos[:data.ncon][keep].copy(), wire_ids)
+    return ContactForces(forces, data.contact.pos[: data.ncon][keep].copy(), wire_ids)
 
 
 def forward_from_velocity_stage(physics) -> None:

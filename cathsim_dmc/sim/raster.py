@@ -58,12 +58,13 @@ def mesh_in_world(physics, geom_id: int):
     va, vn = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
     fa, fn = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
     rot = physics.data.geom_xmat[geom_id].reshape(3, 3)
-    vertices = model.mesh_vert[va:va + vn].astype(np.float64) @ rot.T + physics.data.geom_xpos[geom_id]
-    return vertices, model.mesh_face[fa:fa + fn].astype(np.int64)
+    vertices = model.mesh_vert[va : va + vn].astype(np.float64) @ rot.T + physics.data.geom_xpos[geom_id]
+    return vertices, model.mesh_face[fa : fa + fn].astype(np.int64)
 
 
-def path_length_map(vertices: np.ndarray, faces: np.ndarray, matrix_1px: np.ndarray,
-                    towards_camera: np.ndarray, size: int):
+def path_length_map(
+    vertices: np.ndarray, faces: np.ndarray, matrix_1px: np.ndarray, towards_camera: np.ndarray, size: int
+):
     """Per-pixel length (metres) of the view ray inside a closed surface, sampled at
     pixel centres, and the number of surface crossings (0 outside the silhouette)."""
     uv = project(vertices, matrix_1px, size)
@@ -90,13 +91,19 @@ def path_length_map(vertices: np.ndarray, faces: np.ndarray, matrix_1px: np.ndar
             x, y = px + 0.5 + _TIE_BREAK, py + 0.5 + 2 * _TIE_BREAK
 
             def edge(p, q):  # twice the signed area of (p, q, sample)
-                return ((q[chosen, 0, None, None] - p[chosen, 0, None, None]) * (y - p[chosen, 1, None, None])
-                        - (q[chosen, 1, None, None] - p[chosen, 1, None, None]) * (x - p[chosen, 0, None, None]))
+                return (q[chosen, 0, None, None] - p[chosen, 0, None, None]) * (y - p[chosen, 1, None, None]) - (
+                    q[chosen, 1, None, None] - p[chosen, 1, None, None]
+                ) * (x - p[chosen, 0, None, None])
 
             s = area2[chosen, None, None]
             w0, w1, w2 = edge(b, c) / s, edge(c, a) / s, edge(a, b) / s
-            inside = ((w0 >= 0) & (w1 >= 0) & (w2 >= 0)
-                      & (px <= hi[chosen, 0, None, None]) & (py <= hi[chosen, 1, None, None]))
+            inside = (
+                (w0 >= 0)
+                & (w1 >= 0)
+                & (w2 >= 0)
+                & (px <= hi[chosen, 0, None, None])
+                & (py <= hi[chosen, 1, None, None])
+            )
             f = faces[chosen]
             z = w0 * depth[f[:, 0], None, None] + w1 * depth[f[:, 1], None, None] + w2 * depth[f[:, 2], None, None]
             index = np.broadcast_to(py * size + px, inside.shape)[inside]

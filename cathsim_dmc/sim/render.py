@@ -76,7 +76,9 @@ def check_render_size(name: str, value) -> int:
     ValueError naming the parameter."""
     size = check_number(name, value, 1, whole=True)
     if size > MAX_RENDER_PX:
-        raise ValueError(f"{name}={value!r} is larger than the offscreen framebuffer; choose 1 to {MAX_RENDER_PX} pixels")
+        raise ValueError(
+            f"{name}={value!r} is larger than the offscreen framebuffer; choose 1 to {MAX_RENDER_PX} pixels"
+        )
     return size
 
 
@@ -100,8 +102,10 @@ class CameraCache:
             # Checked against this model's own buffer: else dm_control's error surfaces as a GL failure.
             buffer = physics.model.vis.global_
             if pixels > min(buffer.offwidth, buffer.offheight):
-                raise ValueError(f"image size={pixels} is larger than the model's offscreen framebuffer "
-                                 f"({buffer.offwidth}x{buffer.offheight} px)")
+                raise ValueError(
+                    f"image size={pixels} is larger than the model's offscreen framebuffer "
+                    f"({buffer.offwidth}x{buffer.offheight} px)"
+                )
             from dm_control.mujoco.engine import Camera
 
             try:
@@ -151,8 +155,9 @@ class TopView:
             factors.append(cls.MASK_SUPERSAMPLING)
         return MAX_RENDER_PX // max(factors) if factors else None
 
-    def __init__(self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl",
-                 wire=None, vessel_geom_id=None):
+    def __init__(
+        self, size: int = IMAGE_SIZE, camera: str = TOP_CAMERA, renderer: str = "gl", wire=None, vessel_geom_id=None
+    ):
         if renderer not in RENDERERS:
             raise ValueError(f"renderer={renderer!r}; choose one of {RENDERERS}")
         self.size = int(size)
@@ -201,8 +206,7 @@ class TopView:
     # -- helpers ---------------------------------------------------------------
     def _segmentation(self, physics) -> np.ndarray:
         pixels = self.size * self.MASK_SUPERSAMPLING
-        return self._cache.render(physics, self.camera, pixels, segmentation=True,
-                                  scene_option=_MASK_OPTION)[..., 0]
+        return self._cache.render(physics, self.camera, pixels, segmentation=True, scene_option=_MASK_OPTION)[..., 0]
 
     def _scene_for(self, physics) -> dict:
         if self._model is not physics.model.ptr:  # a recompiled model invalidates it all
@@ -212,7 +216,8 @@ class TopView:
             matrix, towards_camera = raster.camera_axes(physics, self.camera)
             wire_width_px = self._wire.diameter_m * self.size * float(np.linalg.norm(matrix[0, :3]))
             self._scene = dict(
-                matrix=matrix, towards_camera=towards_camera,
+                matrix=matrix,
+                towards_camera=towards_camera,
                 bodies=physics.bind(self._wire.segments).element_id.copy(),
                 tip=int(physics.bind(self._wire.tip_site).element_id),
                 wire_width_px=wire_width_px,

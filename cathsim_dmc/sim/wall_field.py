@@ -49,7 +49,9 @@ class NativeBuildError(RuntimeError):
 
 def _libmujoco_path() -> str:
     folder = os.path.dirname(mujoco.__file__)
-    found = sorted(glob.glob(os.path.join(folder, "libmujoco.so*")) + glob.glob(os.path.join(folder, "libmujoco*.dylib")))
+    found = sorted(
+        glob.glob(os.path.join(folder, "libmujoco.so*")) + glob.glob(os.path.join(folder, "libmujoco*.dylib"))
+    )
     if not found:
         raise NativeBuildError(f"no libmujoco shared library next to the mujoco package in {folder}")
     return found[0]
@@ -60,8 +62,10 @@ def _compile(target: pathlib.Path) -> None:
     compiler = shutil.which(wanted) if wanted else (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang"))
     if not compiler:
         found = f"CC={wanted!r} is not an executable" if wanted else "no cc, gcc or clang on PATH"
-        raise NativeBuildError(f"the distance-field wall (physics=fast_field) compiles its contact test once and needs a "
-                               f"C compiler ({found}; Debian: apt-get install gcc); physics=fast needs none")
+        raise NativeBuildError(
+            f"the distance-field wall (physics=fast_field) compiles its contact test once and needs a "
+            f"C compiler ({found}; Debian: apt-get install gcc); physics=fast needs none"
+        )
     include = os.path.join(os.path.dirname(mujoco.__file__), "include")
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".so.tmp")
@@ -99,10 +103,28 @@ def native() -> ctypes.CDLL:
         lib.cathsim_wall_install.restype = ctypes.c_int
         lib.cathsim_wall_distance.argtypes = [_double_p, _double_p]
         lib.cathsim_wall_distance.restype = ctypes.c_double
-        lib.cathsim_wall_mark_blocks.argtypes = [ctypes.c_int, _double_p, ctypes.c_double, _double_p, _int_p,
-                                                 ctypes.c_double, _double_p]
-        lib.cathsim_wall_fill.argtypes = [ctypes.c_int, _double_p, _double_p, ctypes.c_double, _double_p, _int_p,
-                                          ctypes.c_double, _double_p, ctypes.c_void_p, _double_p, _double_p]
+        lib.cathsim_wall_mark_blocks.argtypes = [
+            ctypes.c_int,
+            _double_p,
+            ctypes.c_double,
+            _double_p,
+            _int_p,
+            ctypes.c_double,
+            _double_p,
+        ]
+        lib.cathsim_wall_fill.argtypes = [
+            ctypes.c_int,
+            _double_p,
+            _double_p,
+            ctypes.c_double,
+            _double_p,
+            _int_p,
+            ctypes.c_double,
+            _double_p,
+            ctypes.c_void_p,
+            _double_p,
+            _double_p,
+        ]
         # The same library the mujoco bindings loaded (the loader shares one copy per file).
         libmujoco = ctypes.CDLL(_libmujoco_path())
         table = ctypes.addressof(ctypes.c_void_p.in_dll(libmujoco, "mjCOLLISIONFUNC"))
@@ -136,8 +158,9 @@ def pseudo_normals(triangles: np.ndarray) -> np.ndarray:
     return np.concatenate([face[:, None], vertex[vid], edge[eid.reshape(n, 3)]], axis=1)
 
 
-def build_field(triangles, shift_m: float, cut=None, spacing_m: float = FIELD_SPACING_M,
-                band_m: float = FIELD_BAND_M) -> np.ndarray:
+def build_field(
+    triangles, shift_m: float, cut=None, spacing_m: float = FIELD_SPACING_M, band_m: float = FIELD_BAND_M
+) -> np.ndarray:
     """The numeric field's data (float64) for a lumen of outward-facing `triangles`.
 
     Args:
@@ -167,8 +190,19 @@ def build_field(triangles, shift_m: float, cut=None, spacing_m: float = FIELD_SP
     plane = None
     if cut is not None:
         plane = np.ascontiguousarray(np.concatenate([np.asarray(cut[0], float), np.asarray(cut[1], float)]))
-    lib.cathsim_wall_fill(len(tri), flat, normals, spacing_m, origin, nb, band_m, index,
-                          None if plane is None else plane.ctypes.data_as(ctypes.c_void_p), data, best)
+    lib.cathsim_wall_fill(
+        len(tri),
+        flat,
+        normals,
+        spacing_m,
+        origin,
+        nb,
+        band_m,
+        index,
+        None if plane is None else plane.ctypes.data_as(ctypes.c_void_p),
+        data,
+        best,
+    )
     header = np.zeros(HEADER)
     header[0], header[1], header[2:5], header[5:8], header[8] = FIELD_MAGIC, spacing_m, origin, nb, shift_m
     return np.concatenate([header, index, data])

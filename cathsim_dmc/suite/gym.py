@@ -27,8 +27,15 @@ class CathSimEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, task: str = "bca", aorta: str = "type1", obs: str = "internal",
-                 render_mode: str | None = None, render_size: int = 480, **kwargs):
+    def __init__(
+        self,
+        task: str = "bca",
+        aorta: str = "type1",
+        obs: str = "internal",
+        render_mode: str | None = None,
+        render_size: int = 480,
+        **kwargs,
+    ):
         from cathsim_dmc import tasks  # deferred: building the suite needs the assets
 
         if render_mode not in (None, "rgb_array"):
@@ -41,7 +48,8 @@ class CathSimEnv(gymnasium.Env):
         self._env = tasks.load(task, aorta, obs=obs, **kwargs)
         self.task_name, self.aorta_name, self.obs_preset = task, aorta, obs
         self.observation_space = spaces.Dict(
-            {key: _space(key, spec) for key, spec in self._env.observation_spec().items()})
+            {key: _space(key, spec) for key, spec in self._env.observation_spec().items()}
+        )
         self.action_space = _action_space(self._env.action_spec())
         self._needs_reset = True
 
@@ -74,8 +82,9 @@ class CathSimEnv(gymnasium.Env):
         before any physics runs; the environment stays usable).
         """
         if self._needs_reset:
-            raise RuntimeError("step() needs a running episode: call reset() first (at the start and after "
-                               "terminated or truncated)")
+            raise RuntimeError(
+                "step() needs a running episode: call reset() first (at the start and after terminated or truncated)"
+            )
         timestep = self._env.step(action)  # NavigationEnvironment validates the action
         terminated = bool(timestep.last() and timestep.discount == 0.0)
         truncated = bool(timestep.last() and not terminated)
@@ -124,10 +133,15 @@ def make_registered(registered_id: str, **kwargs) -> CathSimEnv:
         import gymnasium
 
         other = env_id(task, aorta)
-        instead = (f"gymnasium.make({other!r})" if other in gymnasium.registry
-                   else f"CathSimEnv(task={task!r}, aorta={aorta!r})")
-        raise ValueError(f"{registered_id} is the {registered_id.split('/')[1].rsplit('-', 1)[0]} environment; "
-                         f"for task={task!r}, aorta={aorta!r} use {instead}")
+        instead = (
+            f"gymnasium.make({other!r})"
+            if other in gymnasium.registry
+            else f"CathSimEnv(task={task!r}, aorta={aorta!r})"
+        )
+        raise ValueError(
+            f"{registered_id} is the {registered_id.split('/')[1].rsplit('-', 1)[0]} environment; "
+            f"for task={task!r}, aorta={aorta!r} use {instead}"
+        )
     return CathSimEnv(**kwargs)
 
 

@@ -31,8 +31,9 @@ def interrupted(error: KeyboardInterrupt) -> "NoReturn":  # noqa: F821
     raise SystemExit(INTERRUPTED)
 
 
-def check_overrides(argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]],
-                    paths_allowed: Sequence[str] = ()) -> None:
+def check_overrides(
+    argv: Sequence[str], choices: Mapping[str, Callable[[], Sequence[str]]], paths_allowed: Sequence[str] = ()
+) -> None:
     """Exit with status 2 if `key=value` (or `key=a,b` in a sweep) names an unknown choice.
 
     For keys in `paths_allowed` an existing file or folder is accepted too (a checkpoint).
@@ -73,8 +74,10 @@ def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
         folder = Path(value).expanduser()
         if not (folder / "meta.json").is_file():
             what = "a folder without meta.json" if folder.is_dir() else "not a folder"
-            fail(f"aorta={value!r} is neither one of {list(choices)} nor an asset folder ({what}; "
-                 "make one with cathsim-aorta)")
+            fail(
+                f"aorta={value!r} is neither one of {list(choices)} nor an asset folder ({what}; "
+                "make one with cathsim-aorta)"
+            )
         folder = folder.resolve()
         out += [f"aorta={ASSET_FOLDER_OPTION}", f"aorta.name={folder}", f"aorta.label={folder.name}"]
     return out
@@ -128,12 +131,17 @@ def composition_error(error: Exception) -> str:
     if cause is not None and getattr(cause, "value", None) is not None:  # a value of the wrong type
         problem = str(cause).splitlines()[0].rstrip(".")
         if isinstance(cause.value, float) and cause.value.is_integer() and "Integer" in problem:  # 1e12
-            return (f"{cause.full_key}={cause.value:g} is written as a decimal number; an integer is needed: "
-                    f"write {int(cause.value)}")
+            return (
+                f"{cause.full_key}={cause.value:g} is written as a decimal number; an integer is needed: "
+                f"write {int(cause.value)}"
+            )
         return f"{cause.full_key}={cause.value!r}: {problem}"
     lines = [line.strip().rstrip(".:") for line in str(error).splitlines()]
-    keep = [line for line in lines if line and not line.startswith(("full_key", "object_type", "See https",
-                                                                      "Set the environment"))]
+    keep = [
+        line
+        for line in lines
+        if line and not line.startswith(("full_key", "object_type", "See https", "Set the environment"))
+    ]
     message = "; ".join(keep[:4]) if keep else type(error).__name__
     override = getattr(error, "override", None)  # a malformed key=value names itself
     return f"cannot parse {override!r}: {message}" if override else message
@@ -149,8 +157,12 @@ def register_resolvers() -> None:
     OmegaConf.register_new_resolver("pid", os.getpid, replace=True)
 
 
-def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
-              paths_allowed: Sequence[str] = ()):
+def run_hydra(
+    task_function,
+    config_name: str,
+    argv_choices: Mapping[str, Callable[[], Sequence[str]]],
+    paths_allowed: Sequence[str] = (),
+):
     """Validate argv, then run `task_function` as a Hydra app on the shipped conf/; Ctrl-C
     at any point ends with one line and exit status 130."""
     try:
@@ -159,8 +171,12 @@ def run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callab
         interrupted(error)
 
 
-def _run_hydra(task_function, config_name: str, argv_choices: Mapping[str, Callable[[], Sequence[str]]],
-               paths_allowed: Sequence[str] = ()):
+def _run_hydra(
+    task_function,
+    config_name: str,
+    argv_choices: Mapping[str, Callable[[], Sequence[str]]],
+    paths_allowed: Sequence[str] = (),
+):
     import hydra
 
     from cathsim_dmc.app.tool_schemas import register_schemas
@@ -224,12 +240,18 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc import tasks
-    from cathsim_dmc.learning.agents import CheckpointPolicy
     from cathsim_dmc.app.train_schema import TaskConfig
+    from cathsim_dmc.learning.agents import CheckpointPolicy
 
     task = cfg.task
-    kwargs = dict(task=task.target, aorta=cfg.aorta.name, delta_m=task.delta_m, success_reward=task.success_reward,
-                  dense=task.dense, max_steps=task.max_steps)
+    kwargs = dict(
+        task=task.target,
+        aorta=cfg.aorta.name,
+        delta_m=task.delta_m,
+        success_reward=task.success_reward,
+        dense=task.dense,
+        max_steps=task.max_steps,
+    )
     for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m"):
         # Only a changed start: a dataset's task options (compared when it is continued) stay as before.
         if task.get(key) is not None and task[key] != getattr(TaskConfig, key):

@@ -50,9 +50,28 @@ from cathsim_dmc.app.cli._common import USAGE_ERROR, fail
 
 COMMANDS = ("build", "import", "validate", "list")
 BUILD_KEYS = ("preset", "arch_type", "seed", "name", "out", "validate", "overwrite")
-IMPORT_KEYS = ("mesh", "entry", "entry_direction", "units", "name", "out", "wall_mm", "edge_mm", "sdf_mm",
-               "remesh", "open_end_mm", "validate", "overwrite", "repair", "smooth_mm", "close_mm", "trim_mm",
-               "crop", "crop_mm", "caps")
+IMPORT_KEYS = (
+    "mesh",
+    "entry",
+    "entry_direction",
+    "units",
+    "name",
+    "out",
+    "wall_mm",
+    "edge_mm",
+    "sdf_mm",
+    "remesh",
+    "open_end_mm",
+    "validate",
+    "overwrite",
+    "repair",
+    "smooth_mm",
+    "close_mm",
+    "trim_mm",
+    "crop",
+    "crop_mm",
+    "caps",
+)
 
 
 def _parse_value(text: str):
@@ -101,15 +120,26 @@ def cmd_build(args: List[str]) -> int:
     import shutil
     import tempfile
 
-    from cathsim_dmc.anatomy import (PRESETS, ArchParams, arch_params, build_asset, generated_asset, load_asset,
-                                     normalize_arch_type, sample_arch_params, with_arch_type)
+    from cathsim_dmc.anatomy import (
+        PRESETS,
+        ArchParams,
+        arch_params,
+        build_asset,
+        generated_asset,
+        load_asset,
+        normalize_arch_type,
+        sample_arch_params,
+        with_arch_type,
+    )
 
     opts = parse_pairs(args)
     fields = {f.name for f in dataclasses.fields(ArchParams)} - {"name", "arch_type", "seed"}
     unknown = sorted(set(opts) - set(BUILD_KEYS) - fields)
     if unknown:
-        fail(f"unknown key(s) {unknown} for build; valid: {list(BUILD_KEYS)} or an ArchParams field "
-             f"({', '.join(sorted(fields))})")
+        fail(
+            f"unknown key(s) {unknown} for build; valid: {list(BUILD_KEYS)} or an ArchParams field "
+            f"({', '.join(sorted(fields))})"
+        )
     preset = str(opts.pop("preset", "type1"))
     if preset not in PRESETS:
         fail(f"preset={preset!r} is not valid; choose one of {list(PRESETS)}")
@@ -124,8 +154,9 @@ def cmd_build(args: List[str]) -> int:
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             fail(f"seed={seed!r} is not valid; give an integer >= 0")
-        params = sample_arch_params(seed, base=preset, arch_types=(arch_type,) if arch_type else ("I", "II", "III"),
-                                    name=name)
+        params = sample_arch_params(
+            seed, base=preset, arch_types=(arch_type,) if arch_type else ("I", "II", "III"), name=name
+        )
     else:
         params = PRESETS[preset].replace(name=name)
         if arch_type:
@@ -154,10 +185,12 @@ def cmd_build(args: List[str]) -> int:
     meta = asset.meta
     ratio = asset.arch_type_distance_m / asset.cca_diameter_m
     tort = meta.get("tortuosity", {})
-    print(f"{asset.name}: arch type {meta.get('arch_type')} (BCA origin {asset.arch_type_distance_m * 1e3:.1f} mm = "
-          f"{ratio:.2f} CCA diameters below the arch top), tortuosity arch {tort.get('arch', float('nan')):.3f} / "
-          f"branches {tort.get('branches', float('nan')):.4f}, {meta['counts']['triangles']} triangles, "
-          f"{asset.hull_count} wall pieces, {_size_mb(folder):.2f} MB -> {folder}")
+    print(
+        f"{asset.name}: arch type {meta.get('arch_type')} (BCA origin {asset.arch_type_distance_m * 1e3:.1f} mm = "
+        f"{ratio:.2f} CCA diameters below the arch top), tortuosity arch {tort.get('arch', float('nan')):.3f} / "
+        f"branches {tort.get('branches', float('nan')):.4f}, {meta['counts']['triangles']} triangles, "
+        f"{asset.hull_count} wall pieces, {_size_mb(folder):.2f} MB -> {folder}"
+    )
     return _report_validation(folder) if validate else 0
 
 
@@ -194,7 +227,10 @@ def cmd_import(args: List[str]) -> int:
         if value in (None, "auto"):
             return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-            fail(f"{key}={value!r} is not valid; give a positive number of millimetres{' or auto' if default == 'auto' else ''}")
+            fail(
+                f"{key}={value!r} is not valid; give a positive number of millimetres"
+                f"{' or auto' if default == 'auto' else ''}"
+            )
         return float(value) * 1e-3
 
     def mm_or_zero(key, default):
@@ -228,16 +264,34 @@ def cmd_import(args: List[str]) -> int:
     if remesh != "auto":
         remesh = _flag({"remesh": remesh}, "remesh", False)
     report = import_mesh(
-        mesh, out, sites=sites, entry=opts.pop("entry"), entry_direction=opts.pop("entry_direction", None),
-        units=str(opts.pop("units", "auto")), name=name, wall_thickness_m=mm("wall_mm", 2.0),
-        edge_length_m=mm("edge_mm", "auto"), sdf_spacing_m=mm("sdf_mm", "auto"), remesh=remesh,
-        open_end_depth_m=mm("open_end_mm", 5.0), validate=_flag(opts, "validate", True),
-        validator=validate_and_compile, overwrite=_flag(opts, "overwrite", False), repair=repair,
-        smooth_m=mm_or_zero("smooth_mm", "auto"), close_gap_m=mm_or_zero("close_mm", 2.0),
-        trim_branches_m=mm_or_zero("trim_mm", 3.0), crop=crop, crop_margin_m=crop_margin_m, caps=caps)
+        mesh,
+        out,
+        sites=sites,
+        entry=opts.pop("entry"),
+        entry_direction=opts.pop("entry_direction", None),
+        units=str(opts.pop("units", "auto")),
+        name=name,
+        wall_thickness_m=mm("wall_mm", 2.0),
+        edge_length_m=mm("edge_mm", "auto"),
+        sdf_spacing_m=mm("sdf_mm", "auto"),
+        remesh=remesh,
+        open_end_depth_m=mm("open_end_mm", 5.0),
+        validate=_flag(opts, "validate", True),
+        validator=validate_and_compile,
+        overwrite=_flag(opts, "overwrite", False),
+        repair=repair,
+        smooth_m=mm_or_zero("smooth_mm", "auto"),
+        close_gap_m=mm_or_zero("close_mm", 2.0),
+        trim_branches_m=mm_or_zero("trim_mm", 3.0),
+        crop=crop,
+        crop_margin_m=crop_margin_m,
+        caps=caps,
+    )
     lengths = ", ".join(f"{k} {v * 100:.1f} cm" for k, v in sorted(report.path_length_m.items()))
-    print(f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
-          f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}")
+    print(
+        f"{report.name}: {report.triangles} triangles ({'remeshed' if report.remeshed else 'kept'}), "
+        f"{report.hulls} wall pieces, entry->site {lengths}, {report.seconds:.1f} s -> {report.path}"
+    )
     changes = report.repairs + [n for n in report.notes if n.startswith("a fold at")]
     if changes:  # everything the import changed, and where, in one place
         print(f"{report.name}: changed: " + "; ".join(changes))
@@ -267,8 +321,10 @@ def cmd_list(args: List[str]) -> int:
         if a.arch_type_distance_m is not None and a.cca_diameter_m:
             dist = f"{a.arch_type_distance_m * 1e3:.1f} mm = {a.arch_type_distance_m / a.cca_diameter_m:.2f} CCA"
         tort = a.meta.get("tortuosity", {}).get("arch")
-        print(f"{name:<16} {a.meta.get('arch_type', '?'):<5} {dist:<22} {'-' if tort is None else f'{tort:.3f}':<11} "
-              f"{a.hull_count:>6}")
+        print(
+            f"{name:<16} {a.meta.get('arch_type', '?'):<5} {dist:<22} {'-' if tort is None else f'{tort:.3f}':<11} "
+            f"{a.hull_count:>6}"
+        )
     return 0
 
 
@@ -286,7 +342,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         return {"build": cmd_build, "import": cmd_import, "validate": cmd_validate, "list": cmd_list}[command](rest)
     except (MeshImportError, ValueError, FileNotFoundError) as error:
         fail(str(error).strip().replace("\n", " "))
-    except RuntimeError as error:     # the mesher refusing a geometry
+    except RuntimeError as error:  # the mesher refusing a geometry
         fail(f"{command} failed: {str(error).strip().splitlines()[0]}")
 
 

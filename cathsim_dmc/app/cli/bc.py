@@ -40,10 +40,17 @@ def run(cfg) -> dict:
 
     from cathsim_dmc.app.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, evaluate_policy
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.learning.agents import CheckpointPolicy
-    from cathsim_dmc.learning.supervised.bc import PRESET_FOR_IMAGE, BCConfig, BCPolicyModel, epoch_seconds_per_10k, save_bc, train_bc
     from cathsim_dmc.learning.datasets import has_keys, load_arrays, stack_frames
+    from cathsim_dmc.learning.supervised.bc import (
+        PRESET_FOR_IMAGE,
+        BCConfig,
+        BCPolicyModel,
+        epoch_seconds_per_10k,
+        save_bc,
+        train_bc,
+    )
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     # Every value's type and range was checked before Hydra started (cathsim_dmc/app/tool_schemas.py).
     image_key = str(cfg.bc.image_key)
@@ -56,8 +63,13 @@ def run(cfg) -> dict:
     images_opts = {**pick(kwargs, IMAGE_OPTIONS), **(manifests[0]["image_options"] if manifests else {})}
     for m in manifests:
         if (m["task"], m["aorta"]) != (cfg.task.target, cfg.aorta.name):
-            log.warning("data was collected on %s/%s; the student is evaluated on %s/%s",
-                        m["task"], m["aorta"], cfg.task.target, cfg.aorta.name)
+            log.warning(
+                "data was collected on %s/%s; the student is evaluated on %s/%s",
+                m["task"],
+                m["aorta"],
+                cfg.task.target,
+                cfg.aorta.name,
+            )
     if cfg.torch_threads:
         torch.set_num_threads(int(cfg.torch_threads))
 
@@ -82,27 +94,57 @@ def run(cfg) -> dict:
     result = train_bc(images, actions, arrays["episode"], bc_cfg, arrays.get("feature_z"), progress)
     bar.close()
     per_10k = epoch_seconds_per_10k(result.history, len(result.train_rows))
-    log.info("trained %d epochs on %d samples in %.0f s (%.1f s per epoch per 10K samples)",
-             bc_cfg.epochs, len(result.train_rows), result.seconds, per_10k)
-    (run_dir / "history.json").write_text(json.dumps(
-        {"train_samples": int(len(result.train_rows)), "val_samples": int(len(result.val_rows)),
-         "seconds": result.seconds, "seconds_per_epoch_per_10k": per_10k, "epochs": result.history}, indent=2))
-    save_bc(result.net, run_dir, image_key, images_opts,
-            {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths}, frames=bc_cfg.frames)
+    log.info(
+        "trained %d epochs on %d samples in %.0f s (%.1f s per epoch per 10K samples)",
+        bc_cfg.epochs,
+        len(result.train_rows),
+        result.seconds,
+        per_10k,
+    )
+    (run_dir / "history.json").write_text(
+        json.dumps(
+            {
+                "train_samples": int(len(result.train_rows)),
+                "val_samples": int(len(result.val_rows)),
+                "seconds": result.seconds,
+                "seconds_per_epoch_per_10k": per_10k,
+                "epochs": result.history,
+            },
+            indent=2,
+        )
+    )
+    save_bc(
+        result.net,
+        run_dir,
+        image_key,
+        images_opts,
+        {"task": cfg.task.target, "aorta": cfg.aorta.name, "data": paths},
+        frames=bc_cfg.frames,
+    )
 
     if eval_episodes == 0:
         return {"history": result.history}
-    policy = CheckpointPolicy(BCPolicyModel(result.net, image_key, bc_cfg.frames), PRESET_FOR_IMAGE[image_key],
-                              images_opts)
+    policy = CheckpointPolicy(
+        BCPolicyModel(result.net, image_key, bc_cfg.frames), PRESET_FOR_IMAGE[image_key], images_opts
+    )
     env = CathSimEnv(**env_kwargs(cfg, policy=policy))
     try:
-        report = evaluate_policy(env, policy, f"bc-{image_key}", eval_episodes, eval_seed, run_dir / "eval",
-                                 video=cfg.video, show_progress=cfg.progress_bar)
+        report = evaluate_policy(
+            env,
+            policy,
+            f"bc-{image_key}",
+            eval_episodes,
+            eval_seed,
+            run_dir / "eval",
+            video=cfg.video,
+            show_progress=cfg.progress_bar,
+        )
     finally:
         env.close()
     print((run_dir / "eval" / METRICS_MD).read_text(), end="")
-    print(f"success {report['summary']['success_pct']['mean']:.0f}% over {eval_episodes} episodes; "
-          f"run folder: {run_dir}")
+    print(
+        f"success {report['summary']['success_pct']['mean']:.0f}% over {eval_episodes} episodes; run folder: {run_dir}"
+    )
     return report
 
 

@@ -30,8 +30,9 @@ log = logging.getLogger("cathsim-bench")
 SCENARIO_ACTION = (1.0, 0.2)  # insertion, rotation
 
 
-def measure(task: str, aorta: str, obs: str, steps: int, renderer: str = "-", style: str = "-",
-            physics: str | None = None) -> dict:
+def measure(
+    task: str, aorta: str, obs: str, steps: int, renderer: str = "-", style: str = "-", physics: str | None = None
+) -> dict:
     """One measurement, meant to run in its own process (for a clean peak RSS)."""
     import resource
 
@@ -81,10 +82,17 @@ def measure(task: str, aorta: str, obs: str, steps: int, renderer: str = "-", st
     image_ms = _image_ms(env, style) if image_options else 0.0
     env.close()
     return {
-        "aorta": aorta, "obs": obs, "renderer": renderer, "style": style, "steps": done,
-        "steps_per_s": done / wall, "realtime": done * control_dt / wall,
-        "raw_steps_per_s": done / raw_wall, "overhead": wall / raw_wall,
-        "mean_contacts": float(np.mean(contacts)), "build_s": build_s,
+        "aorta": aorta,
+        "obs": obs,
+        "renderer": renderer,
+        "style": style,
+        "steps": done,
+        "steps_per_s": done / wall,
+        "realtime": done * control_dt / wall,
+        "raw_steps_per_s": done / raw_wall,
+        "overhead": wall / raw_wall,
+        "mean_contacts": float(np.mean(contacts)),
+        "build_s": build_s,
         "reset_ms": 1e3 * statistics.median(resets),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "image_ms": image_ms,
@@ -133,36 +141,48 @@ def run(cfg) -> list:
             if value not in valid:
                 raise ValueError(f"{name}: {value!r} is not one of {list(valid)}")
     context = multiprocessing.get_context("spawn")
-    print(f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task.target}, "
-          f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}; the physics "
-          f"settings of one row group are measured in turn, repeat by repeat, so a noisy machine treats them alike")
-    header = ("| aorta | obs | renderer | style | physics | control steps/s | x real time | raw mj_step steps/s | overhead "
-              "| contacts | build s | reset ms | peak RSS MB | image ms |")
+    print(
+        f"{time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores; task {cfg.task.target}, "
+        f"{cfg.steps} control steps of 0.1 s (action {SCENARIO_ACTION}), median of {cfg.repeats}; the physics "
+        f"settings of one row group are measured in turn, repeat by repeat, so a noisy machine treats them alike"
+    )
+    header = (
+        "| aorta | obs | renderer | style | physics | control steps/s | x real time | raw mj_step steps/s | overhead "
+        "| contacts | build s | reset ms | peak RSS MB | image ms |"
+    )
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
     for aorta in cfg.aortas:
         for obs in cfg.presets:
             has_images = bool(OBSERVATION_PRESETS[obs].enabled & {"pixels", "guidewire_mask"})
-            image_settings = ([(r, s) for r in cfg.renderers for s in cfg.styles] if has_images else [("-", "-")])
+            image_settings = [(r, s) for r in cfg.renderers for s in cfg.styles] if has_images else [("-", "-")]
             for renderer, style in image_settings:
                 runs = {physics: [] for physics in settings}
                 for _ in range(cfg.repeats):
                     for physics in settings:
                         with context.Pool(1) as pool:
-                            runs[physics].append(pool.apply(
-                                _measure_in_subprocess,
-                                ((cfg.task.target, aorta, obs, cfg.steps, renderer, style, physics),)))
+                            runs[physics].append(
+                                pool.apply(
+                                    _measure_in_subprocess,
+                                    ((cfg.task.target, aorta, obs, cfg.steps, renderer, style, physics),),
+                                )
+                            )
                 for physics in settings:
                     found = runs[physics]
-                    med = {k: (statistics.median(r[k] for r in found) if isinstance(found[0][k], float)
-                               else found[0][k]) for k in found[0]}
+                    med = {
+                        k: (statistics.median(r[k] for r in found) if isinstance(found[0][k], float) else found[0][k])
+                        for k in found[0]
+                    }
                     med["physics"] = physics
                     rows.append(med)
-                    print(f"| {aorta} | {obs} | {renderer} | {style} | {physics} | {med['steps_per_s']:.1f} | "
-                          f"{med['realtime']:.2f} | {med['raw_steps_per_s']:.1f} | {med['overhead']:.2f} | "
-                          f"{med['mean_contacts']:.0f} | {med['build_s']:.2f} | {med['reset_ms']:.1f} | "
-                          f"{med['peak_rss_mb']:.0f} | {med['image_ms']:.2f} |", flush=True)
+                    print(
+                        f"| {aorta} | {obs} | {renderer} | {style} | {physics} | {med['steps_per_s']:.1f} | "
+                        f"{med['realtime']:.2f} | {med['raw_steps_per_s']:.1f} | {med['overhead']:.2f} | "
+                        f"{med['mean_contacts']:.0f} | {med['build_s']:.2f} | {med['reset_ms']:.1f} | "
+                        f"{med['peak_rss_mb']:.0f} | {med['image_ms']:.2f} |",
+                        flush=True,
+                    )
     return rows
 
 

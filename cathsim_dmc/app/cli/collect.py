@@ -19,8 +19,8 @@ log = logging.getLogger("cathsim-collect")
 def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
-    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.app.cli._common import IMAGE_OPTIONS, env_kwargs, pick
+    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.core.run_files import Interrupted, lock_folder
     from cathsim_dmc.learning.collect import MANIFEST, collect, read_manifest
 
@@ -34,18 +34,30 @@ def run(cfg) -> dict:
     if cfg.get("out") and not (out.exists() and not out.is_dir()):  # (a file: `collect` says so)
         lock_folder(out)  # outside the Hydra run folder, which its own lock holds
     try:
-        manifest = collect(out, cfg.task.target, cfg.aorta.name, str(cfg.policy), episodes,
-                           check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
-                           check_number("seed", cfg.seed, 0, whole=True), options, images,
-                           show_progress=cfg.progress_bar,
-                           action_noise_std=check_number("action_noise_std", cfg.action_noise_std, 0.0))
+        manifest = collect(
+            out,
+            cfg.task.target,
+            cfg.aorta.name,
+            str(cfg.policy),
+            episodes,
+            check_number("episodes_per_shard", cfg.episodes_per_shard, 1, whole=True),
+            check_number("seed", cfg.seed, 0, whole=True),
+            options,
+            images,
+            show_progress=cfg.progress_bar,
+            action_noise_std=check_number("action_noise_std", cfg.action_noise_std, 0.0),
+        )
     except KeyboardInterrupt:
         # Every finished shard is in the manifest (written atomically after each shard).
         kept = read_manifest(out / MANIFEST)["episodes"] if (out / MANIFEST).is_file() else 0
-        raise Interrupted(f"collection stopped; {kept} finished episodes kept in {out}; continue with: "
-                          f"cathsim-collect out={out} episodes={episodes}") from None
-    print(f"{manifest['episodes']} episodes, {manifest['samples']} samples, "
-          f"{manifest['successes']} reached the target; dataset in {out}")
+        raise Interrupted(
+            f"collection stopped; {kept} finished episodes kept in {out}; continue with: "
+            f"cathsim-collect out={out} episodes={episodes}"
+        ) from None
+    print(
+        f"{manifest['episodes']} episodes, {manifest['samples']} samples, "
+        f"{manifest['successes']} reached the target; dataset in {out}"
+    )
     return manifest
 
 
@@ -54,10 +66,17 @@ def main():
     from cathsim_dmc.control.policies import BUILTIN_POLICIES
     from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
-    run_hydra(run, "collect", {
-        "task": lambda: TARGETS, "aorta": aorta_choices,
-        "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]), "obs": lambda: config_choices("obs"),
-    }, paths_allowed=("policy",))
+    run_hydra(
+        run,
+        "collect",
+        {
+            "task": lambda: TARGETS,
+            "aorta": aorta_choices,
+            "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]),
+            "obs": lambda: config_choices("obs"),
+        },
+        paths_allowed=("policy",),
+    )
 
 
 if __name__ == "__main__":

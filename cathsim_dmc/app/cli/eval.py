@@ -16,11 +16,11 @@ from pathlib import Path
 def evaluate(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
-    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.app.cli._common import env_kwargs, explicit_override
+    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, check_report_options, evaluate_policy
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)
     seed = check_number("seed", cfg.seed, 0, whole=True)
@@ -32,8 +32,10 @@ def evaluate(cfg) -> dict:
     if checkpoint and explicit_override("obs") and cfg.obs.name != policy.obs_preset:
         # A checkpoint is evaluated on the observations it was trained on; a silent switch
         # would report numbers for a configuration nobody asked for.
-        raise ValueError(f"obs={cfg.obs.name!r}, but {cfg.policy} was trained with obs={policy.obs_preset!r} and is "
-                         f"evaluated with it; leave obs= out")
+        raise ValueError(
+            f"obs={cfg.obs.name!r}, but {cfg.policy} was trained with obs={policy.obs_preset!r} and is "
+            f"evaluated with it; leave obs= out"
+        )
     kwargs = env_kwargs(cfg, policy=policy)
     if checkpoint and explicit_override("task.physics"):
         # A deliberate transfer test: the agent under other solver settings than it was
@@ -45,8 +47,18 @@ def evaluate(cfg) -> dict:
     env = CathSimEnv(**kwargs)
     name = Path(str(cfg.policy)).name if checkpoint else str(cfg.policy)
     try:
-        report = evaluate_policy(env, policy, name, cfg.episodes, seed, out_dir, cfg.video, cfg.video_size,
-                                 cfg.video_format, cfg.save_observations)
+        report = evaluate_policy(
+            env,
+            policy,
+            name,
+            cfg.episodes,
+            seed,
+            out_dir,
+            cfg.video,
+            cfg.video_size,
+            cfg.video_format,
+            cfg.save_observations,
+        )
     finally:
         env.close()
     print((out_dir / METRICS_MD).read_text(), end="")
@@ -59,10 +71,17 @@ def main():
     from cathsim_dmc.control.policies import BUILTIN_POLICIES
     from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
-    run_hydra(evaluate, "eval", {
-        "task": lambda: TARGETS, "aorta": aorta_choices,
-        "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]), "obs": lambda: config_choices("obs"),
-    }, paths_allowed=("policy",))
+    run_hydra(
+        evaluate,
+        "eval",
+        {
+            "task": lambda: TARGETS,
+            "aorta": aorta_choices,
+            "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]),
+            "obs": lambda: config_choices("obs"),
+        },
+        paths_allowed=("policy",),
+    )
 
 
 if __name__ == "__main__":

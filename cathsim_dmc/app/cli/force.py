@@ -38,11 +38,17 @@ def run(cfg) -> dict:
     image = f"obs_{cfg.image_key}"
     use_z = force_cfg.z_coef > 0 and has_keys(paths, ("feature_z",))
     if not has_keys(paths, (cfg.label,)):
-        raise ValueError(f"label={cfg.label} is not in the data {paths} (collected before it was recorded); "
-                         f"collect again or choose label=contact_force_n")
+        raise ValueError(
+            f"label={cfg.label} is not in the data {paths} (collected before it was recorded); "
+            f"collect again or choose label=contact_force_n"
+        )
     arrays = load_arrays(paths, [image, cfg.label] + (["feature_z"] if use_z else []))
-    log.info("%d samples from %d episodes; Z %s", len(arrays["episode"]), len(set(arrays["episode"])),
-             "regressed too" if use_z else "not in the data")
+    log.info(
+        "%d samples from %d episodes; Z %s",
+        len(arrays["episode"]),
+        len(set(arrays["episode"])),
+        "regressed too" if use_z else "not in the data",
+    )
     if cfg.torch_threads:
         torch.set_num_threads(int(cfg.torch_threads))
     run_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -54,25 +60,33 @@ def run(cfg) -> dict:
     def progress(size, epoch, epochs, best):
         bar = bars.get(size)
         if bar is None:
-            bar = bars[size] = tqdm(total=epochs, unit="epoch", desc=f"{size:,} samples",
-                                    disable=not cfg.progress_bar)
+            bar = bars[size] = tqdm(total=epochs, unit="epoch", desc=f"{size:,} samples", disable=not cfg.progress_bar)
         bar.update(1)
         bar.set_postfix(val_mse=f"{best:.4f}")
         if epoch == epochs:
             bar.close()
 
-    report = train_force_sizes(arrays[image], arrays[cfg.label], arrays["episode"], force_cfg,
-                               arrays.get("feature_z"), run_dir, progress)
+    report = train_force_sizes(
+        arrays[image], arrays[cfg.label], arrays["episode"], force_cfg, arrays.get("feature_z"), run_dir, progress
+    )
     report = {"data": paths, "image_key": cfg.image_key, "label": cfg.label, "config": options, **report}
     (run_dir / "force.json").write_text(json.dumps(report, indent=2))
     table = markdown(report)
     (run_dir / "force.md").write_text(table)
     for r in report["sizes"]:
         if r["train_samples"] < r["size_requested"]:
-            log.warning("force.sizes asked for %d samples; the training episodes hold %d, all used",
-                        r["size_requested"], r["train_samples"])
-        log.info("%d samples: %d updates in %.0f s (%.1f s per epoch per 10K samples)", r["train_samples"],
-                 r["updates"], r["seconds"], r["seconds"] / r["epochs"] * 10_000 / max(r["fit_samples"], 1))
+            log.warning(
+                "force.sizes asked for %d samples; the training episodes hold %d, all used",
+                r["size_requested"],
+                r["train_samples"],
+            )
+        log.info(
+            "%d samples: %d updates in %.0f s (%.1f s per epoch per 10K samples)",
+            r["train_samples"],
+            r["updates"],
+            r["seconds"],
+            r["seconds"] / r["epochs"] * 10_000 / max(r["fit_samples"], 1),
+        )
     print(table, end="")
     print(f"run folder: {run_dir}")
     return report

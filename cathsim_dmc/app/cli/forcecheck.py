@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 RESULT_JSON = "forcecheck.json"
 RESULT_MD = "forcecheck.md"
 CDF_PLOT = "force_cdf.png"
@@ -96,13 +95,20 @@ def mann_whitney(simulated, reference) -> dict:
     from scipy.stats import mannwhitneyu
 
     result = mannwhitneyu(simulated, reference, alternative="two-sided")
-    summary = lambda x: {"n": int(x.size), "mean_n": float(np.mean(x)), "median_n": float(np.median(x)),
-                         "std_n": float(np.std(x, ddof=1)) if x.size > 1 else 0.0}
+    summary = lambda x: {
+        "n": int(x.size),
+        "mean_n": float(np.mean(x)),
+        "median_n": float(np.median(x)),
+        "std_n": float(np.std(x, ddof=1)) if x.size > 1 else 0.0,
+    }
     return {
-        "test": "Mann-Whitney U, two-sided", "u_statistic": float(result.statistic), "p_value": float(result.pvalue),
+        "test": "Mann-Whitney U, two-sided",
+        "u_statistic": float(result.statistic),
+        "p_value": float(result.pvalue),
         # P(simulated > reference) + P(equal)/2: 0.5 when neither tends to be larger.
         "common_language_effect": float(result.statistic) / (simulated.size * reference.size),
-        "simulated": summary(simulated), "reference": summary(reference),
+        "simulated": summary(simulated),
+        "reference": summary(reference),
     }
 
 
@@ -142,8 +148,18 @@ def cdf_plot(simulated, reference, out_path, title: str = "") -> Path:
     return Path(out_path)
 
 
-def force_check(trajectories, out_dir, reference_csv=None, column=None, mean_n=None, std_n=None,
-                samples=None, seed: int = 0, contact_only: bool = False, alpha: float = 0.05) -> dict:
+def force_check(
+    trajectories,
+    out_dir,
+    reference_csv=None,
+    column=None,
+    mean_n=None,
+    std_n=None,
+    samples=None,
+    seed: int = 0,
+    contact_only: bool = False,
+    alpha: float = 0.05,
+) -> dict:
     """Compare the trajectories' forces with the reference; write the report into `out_dir`."""
     if (reference_csv is None) == (mean_n is None and std_n is None):
         raise ValueError("give the reference as reference=<CSV> or as mean_n= and std_n= (one of the two)")
@@ -158,14 +174,19 @@ def force_check(trajectories, out_dir, reference_csv=None, column=None, mean_n=N
         reference = normal_reference(float(mean_n), float(std_n), count, seed)
         source = f"normal, mean {mean_n:g} N, std {std_n:g} N, {count} draws, seed {seed}"
     result = mann_whitney(simulated, reference)
-    result.update(reference_source=source, alpha=alpha, contact_only=contact_only,
-                  trajectories=[str(p) for p in trajectories])
+    result.update(
+        reference_source=source, alpha=alpha, contact_only=contact_only, trajectories=[str(p) for p in trajectories]
+    )
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / RESULT_JSON).write_text(json.dumps(result, indent=2))
     (out_dir / RESULT_MD).write_text(markdown(result, alpha))
-    cdf_plot(simulated, reference, out_dir / CDF_PLOT,
-             f"Mann-Whitney U = {result['u_statistic']:.4g}, p = {result['p_value']:.3g}")
+    cdf_plot(
+        simulated,
+        reference,
+        out_dir / CDF_PLOT,
+        f"Mann-Whitney U = {result['u_statistic']:.4g}, p = {result['p_value']:.3g}",
+    )
     return result
 
 
@@ -177,15 +198,25 @@ def run(cfg) -> dict:
     if OmegaConf.is_missing(cfg, "trajectories"):
         raise ValueError("trajectories= is required: one trajectories.npz or a [list] of them")
     files = cfg.trajectories if OmegaConf.is_list(cfg.trajectories) else [cfg.trajectories]
-    numbers = {key: None if cfg[key] is None else check_number(key, cfg[key], 0.0)
-               for key in ("mean_n", "std_n", "alpha")}
+    numbers = {
+        key: None if cfg[key] is None else check_number(key, cfg[key], 0.0) for key in ("mean_n", "std_n", "alpha")
+    }
     samples = None if cfg.samples is None else check_number("samples", cfg.samples, 1, whole=True)
     seed = check_number("seed", cfg.seed, 0, whole=True)
     out = Path(str(cfg.out))
     try:
-        result = force_check([Path(str(f)) for f in files], out, None if cfg.reference is None else Path(cfg.reference),
-                             cfg.column, numbers["mean_n"], numbers["std_n"], samples, seed, bool(cfg.contact_only),
-                             numbers["alpha"])
+        result = force_check(
+            [Path(str(f)) for f in files],
+            out,
+            None if cfg.reference is None else Path(cfg.reference),
+            cfg.column,
+            numbers["mean_n"],
+            numbers["std_n"],
+            samples,
+            seed,
+            bool(cfg.contact_only),
+            numbers["alpha"],
+        )
     except KeyError as error:  # a CSV column that is not there
         raise ValueError(str(error).strip("'\"")) from None
     print((out / RESULT_MD).read_text(), end="")

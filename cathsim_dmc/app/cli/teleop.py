@@ -16,8 +16,10 @@ import os
 import time
 from pathlib import Path
 
-NO_DISPLAY = ('no display: cathsim-teleop opens a window; run it under a virtual one with '
-              'xvfb-run -s "-screen 0 1024x768x24" cathsim-teleop ...')
+NO_DISPLAY = (
+    "no display: cathsim-teleop opens a window; run it under a virtual one with "
+    'xvfb-run -s "-screen 0 1024x768x24" cathsim-teleop ...'
+)
 
 
 def has_display() -> bool:
@@ -31,13 +33,13 @@ def teleop(cfg) -> dict | None:
     import mujoco.viewer
     from hydra.core.hydra_config import HydraConfig
 
-    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.app.cli._common import env_kwargs
+    from cathsim_dmc.control.teleop import HELP, TeleopSession
+    from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.evaluation.episode_ends import trees_of
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, write_report
-    from cathsim_dmc.suite.gym import CathSimEnv
-    from cathsim_dmc.control.teleop import HELP, TeleopSession
     from cathsim_dmc.evaluation.trajectory import TrajectoryRecorder
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     check_number("speed", cfg.speed, 0.0, inclusive=False)  # 1 = real time
     seed = check_number("seed", cfg.seed, 0, whole=True)
@@ -51,8 +53,9 @@ def teleop(cfg) -> dict | None:
     keys: queue.SimpleQueue = queue.SimpleQueue()
     help_keys, help_what = "\n".join(k for k, _ in HELP), "\n".join(w for _, w in HELP)
     try:
-        with mujoco.viewer.launch_passive(physics.model.ptr, physics.data.ptr, key_callback=keys.put,
-                                          show_left_ui=False, show_right_ui=False) as viewer:
+        with mujoco.viewer.launch_passive(
+            physics.model.ptr, physics.data.ptr, key_callback=keys.put, show_left_ui=False, show_right_ui=False
+        ) as viewer:
             viewer.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
             viewer.cam.fixedcamid = physics.model.name2id(cfg.camera, "camera")
             viewer.opt.sitegroup[:] = 1  # the target and the wire tip
@@ -62,10 +65,12 @@ def teleop(cfg) -> dict | None:
                     session.press(keys.get())
                 with viewer.lock():
                     session.tick()
-                viewer.set_texts([
-                    (None, mujoco.mjtGridPos.mjGRID_TOPLEFT, help_keys, help_what),
-                    (None, mujoco.mjtGridPos.mjGRID_BOTTOMLEFT, session.status(), None),
-                ])
+                viewer.set_texts(
+                    [
+                        (None, mujoco.mjtGridPos.mjGRID_TOPLEFT, help_keys, help_what),
+                        (None, mujoco.mjtGridPos.mjGRID_BOTTOMLEFT, session.status(), None),
+                    ]
+                )
                 viewer.sync()
                 time.sleep(max(0.0, period_s - (time.monotonic() - start)))
         if not session.quit:  # the window was closed
@@ -75,8 +80,7 @@ def teleop(cfg) -> dict | None:
             return None
         recorder.save(out_dir / "trajectories.npz")
         label = {"task": env.task.target_name, "aorta": env.aorta_name, "policy": "human"}
-        report = write_report(recorder.arrays(), env.task.aorta.asset, label, out_dir, session.summaries,
-                              trees_of(env))
+        report = write_report(recorder.arrays(), env.task.aorta.asset, label, out_dir, session.summaries, trees_of(env))
     finally:
         env.close()
     print((out_dir / METRICS_MD).read_text(), end="")

@@ -25,14 +25,14 @@ def run(cfg) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc.app.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
-    from cathsim_dmc.app.train_schema import upgrade_saved_config
     from cathsim_dmc.app.tool_schemas import validate
+    from cathsim_dmc.app.train_schema import upgrade_saved_config
+    from cathsim_dmc.core.run_files import Interrupted, lock_folder
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, evaluate_policy
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.learning.agents import load_checkpoint_policy
     from cathsim_dmc.learning.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, FINAL_MODEL, best_record
     from cathsim_dmc.learning.rl.train import make_vec_env, train
-    from cathsim_dmc.core.run_files import Interrupted, lock_folder
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     resume = cfg.get("resume")
     if resume:
@@ -52,17 +52,24 @@ def run(cfg) -> dict:
     seed = cfg.seed
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     # rl.train reads the experimental switch with the trainer's options
-    trainer = dict(OmegaConf.to_container(cfg.trainer, resolve=True),
-                   normalize_observations=cfg.experimental.normalize_observations)
+    trainer = dict(
+        OmegaConf.to_container(cfg.trainer, resolve=True),
+        normalize_observations=cfg.experimental.normalize_observations,
+    )
     train_kwargs, eval_kwargs = env_kwargs(cfg, training=True), env_kwargs(cfg)
     agent_options = pick(eval_kwargs, AGENT_OPTIONS)
     image_options = pick(eval_kwargs, IMAGE_OPTIONS)
     demos = OmegaConf.to_container(cfg.demos, resolve=True)
     task, aorta, obs = cfg.task.target, cfg.aorta.name, cfg.obs.name
     if not resume:
-        log.info("recipe: %s: batch_size %d, %s", recipe(HydraConfig.get().runtime.choices), cfg.algo.batch_size,
-                 "one features extractor shared by actor and critics" if cfg.algo.share_features_extractor
-                 else "separate features extractors for actor and critics")
+        log.info(
+            "recipe: %s: batch_size %d, %s",
+            recipe(HydraConfig.get().runtime.choices),
+            cfg.algo.batch_size,
+            "one features extractor shared by actor and critics"
+            if cfg.algo.share_features_extractor
+            else "separate features extractors for actor and critics",
+        )
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
@@ -70,31 +77,60 @@ def run(cfg) -> dict:
     vec_kwargs = {k: v for k, v in train_kwargs.items() if k not in ("task", "aorta", "obs")}
     env = make_vec_env(task, aorta, obs, seed, cfg.trainer.n_envs, vec_kwargs)
     try:
-        result = train(env, run_dir, algo, trainer, seed, obs, task, aorta, resume=bool(resume),
-                       make_eval_env=lambda: CathSimEnv(**eval_kwargs), image_options=image_options, demos=demos,
-                       make_demo_env=lambda: CathSimEnv(**train_kwargs), env_options=agent_options)
+        result = train(
+            env,
+            run_dir,
+            algo,
+            trainer,
+            seed,
+            obs,
+            task,
+            aorta,
+            resume=bool(resume),
+            make_eval_env=lambda: CathSimEnv(**eval_kwargs),
+            image_options=image_options,
+            demos=demos,
+            make_demo_env=lambda: CathSimEnv(**train_kwargs),
+            env_options=agent_options,
+        )
     finally:
         env.close()
-    log.info("trained %d steps in %.0f s (%.1f env steps/s)", result.steps, result.seconds,
-             result.steps / max(result.seconds, 1e-9))
+    log.info(
+        "trained %d steps in %.0f s (%.1f env steps/s)",
+        result.steps,
+        result.seconds,
+        result.steps / max(result.seconds, 1e-9),
+    )
 
     best = best_record(run_dir)
     if cfg.trainer.final_policy == "best" and best is not None:
         # Loaded as cathsim-eval loads it: the model, its normaliser and its policy.json.
         policy = load_checkpoint_policy(run_dir / CHECKPOINT_DIR / BEST_MODEL)
-        log.info("evaluating best.zip (step %d: %.0f%% success over %s selection episodes)", best["step"],
-                 100 * best["success_rate"], best.get("episodes", cfg.trainer.eval_episodes))
+        log.info(
+            "evaluating best.zip (step %d: %.0f%% success over %s selection episodes)",
+            best["step"],
+            100 * best["success_rate"],
+            best.get("episodes", cfg.trainer.eval_episodes),
+        )
     else:  # the final model as cathsim-eval loads it (with the averaged actor of sac_tuned)
         policy = load_checkpoint_policy(run_dir / FINAL_MODEL)
     eval_env = CathSimEnv(**eval_kwargs)
     try:
-        report = evaluate_policy(eval_env, policy, f"sac-{obs}",
-                                 cfg.trainer.final_eval_episodes or cfg.trainer.eval_episodes,
-                                 seed=10_000 + seed, out_dir=run_dir / "eval", video=cfg.trainer.video,
-                                 label={"seed": seed})
+        report = evaluate_policy(
+            eval_env,
+            policy,
+            f"sac-{obs}",
+            cfg.trainer.final_eval_episodes or cfg.trainer.eval_episodes,
+            seed=10_000 + seed,
+            out_dir=run_dir / "eval",
+            video=cfg.trainer.video,
+            label={"seed": seed},
+        )
     except Interrupted as error:
-        raise Interrupted(f"training finished ({run_dir / 'final_model.zip'}); {error}; evaluate it again "
-                          f"with: cathsim-eval policy={run_dir} seed={10_000 + seed}") from None
+        raise Interrupted(
+            f"training finished ({run_dir / 'final_model.zip'}); {error}; evaluate it again "
+            f"with: cathsim-eval policy={run_dir} seed={10_000 + seed}"
+        ) from None
     finally:
         eval_env.close()
     print((run_dir / "eval" / METRICS_MD).read_text(), end="")
@@ -137,11 +173,18 @@ def main():
     from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
     sys.argv[1:] = explicit_algo(resume_in_place(sys.argv[1:]))
-    run_hydra(run, "train", {
-        "task": lambda: TARGETS, "aorta": aorta_choices, "obs": lambda: config_choices("obs"),
-        "algo": lambda: config_choices("algo"), "reward": lambda: config_choices("reward"),
-        "demos": lambda: config_choices("demos"),
-    })
+    run_hydra(
+        run,
+        "train",
+        {
+            "task": lambda: TARGETS,
+            "aorta": aorta_choices,
+            "obs": lambda: config_choices("obs"),
+            "algo": lambda: config_choices("algo"),
+            "reward": lambda: config_choices("reward"),
+            "demos": lambda: config_choices("demos"),
+        },
+    )
 
 
 if __name__ == "__main__":

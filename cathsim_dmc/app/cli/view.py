@@ -49,8 +49,8 @@ def view(cfg) -> None:
     import mujoco
     import mujoco.viewer
 
-    from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.evaluation.trajectory import load_trajectories
+    from cathsim_dmc.suite.gym import CathSimEnv
 
     task, aorta, arrays = cfg.task.target, cfg.aorta.name, None
     if cfg.trajectory:
@@ -89,8 +89,10 @@ def main():
     from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
     if not has_display():
-        fail('no display: cathsim-view opens a window; run it under a virtual one with '
-             'xvfb-run -s "-screen 0 1024x768x24" cathsim-view ...')
+        fail(
+            "no display: cathsim-view opens a window; run it under a virtual one with "
+            'xvfb-run -s "-screen 0 1024x768x24" cathsim-view ...'
+        )
     run_hydra(view, "view", {"task": lambda: TARGETS, "aorta": aorta_choices})
 
 

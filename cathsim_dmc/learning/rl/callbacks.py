@@ -16,9 +16,18 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 
-from cathsim_dmc.learning.rl.checkpoints import (BEST_MODEL, CHECKPOINT_DIR, append_evaluation, best_record, copy_model,
-                                        evaluated_wall_seconds, keep_if_best, read_evaluations, save_checkpoint,
-                                        write_best_record)
+from cathsim_dmc.learning.rl.checkpoints import (
+    BEST_MODEL,
+    CHECKPOINT_DIR,
+    append_evaluation,
+    best_record,
+    copy_model,
+    evaluated_wall_seconds,
+    keep_if_best,
+    read_evaluations,
+    save_checkpoint,
+    write_best_record,
+)
 
 
 def deterministic_policy(model):
@@ -67,7 +76,7 @@ class EpisodeStats(BaseCallback):
                 self._successes.append(float(info.get("success", False)))
                 self._forces.append(self._force_sum[i] / max(self._steps[i], 1))
                 self._force_sum[i] = self._steps[i] = 0
-                self._successes, self._forces = self._successes[-self.window:], self._forces[-self.window:]
+                self._successes, self._forces = self._successes[-self.window :], self._forces[-self.window :]
                 self.logger.record("rollout/success_rate", float(np.mean(self._successes)))
                 self.logger.record("rollout/mean_contact_force_n", float(np.mean(self._forces)))
         elapsed = time.perf_counter() - self._t0
@@ -91,8 +100,9 @@ class Checkpoints(CheckpointCallback):
 
     def __init__(self, save_freq: int, save_path: Path, save_replay_buffer: bool = False):
         # The normaliser is always saved beside the model it belongs to.
-        super().__init__(int(save_freq), Path(save_path), save_replay_buffer=bool(save_replay_buffer),
-                         save_vecnormalize=True)
+        super().__init__(
+            int(save_freq), Path(save_path), save_replay_buffer=bool(save_replay_buffer), save_vecnormalize=True
+        )
         self._last_saved = 0
         self._stop_requested = False
         self._previous_handler = None
@@ -159,12 +169,28 @@ class PeriodicEvaluation(EvalCallback):
     :param verbose: as EvalCallback's
     """
 
-    def __init__(self, eval_env, eval_freq: int, n_eval_episodes: int, seed: int, run_dir: Path | None = None,
-                 callback_on_new_best: BaseCallback | None = None, callback_after_eval: BaseCallback | None = None,
-                 verbose: int = 0, evaluate_at_start: bool = False):
-        super().__init__(eval_env, callback_on_new_best=callback_on_new_best, callback_after_eval=callback_after_eval,
-                         n_eval_episodes=int(n_eval_episodes), eval_freq=int(eval_freq), deterministic=True,
-                         verbose=verbose, warn=False)
+    def __init__(
+        self,
+        eval_env,
+        eval_freq: int,
+        n_eval_episodes: int,
+        seed: int,
+        run_dir: Path | None = None,
+        callback_on_new_best: BaseCallback | None = None,
+        callback_after_eval: BaseCallback | None = None,
+        verbose: int = 0,
+        evaluate_at_start: bool = False,
+    ):
+        super().__init__(
+            eval_env,
+            callback_on_new_best=callback_on_new_best,
+            callback_after_eval=callback_after_eval,
+            n_eval_episodes=int(n_eval_episodes),
+            eval_freq=int(eval_freq),
+            deterministic=True,
+            verbose=verbose,
+            warn=False,
+        )
         self.episode_env = eval_env  # EvalCallback keeps it wrapped in a DummyVecEnv; episodes run on it directly
         self.seed = int(seed)
         self.run_dir = None if run_dir is None else Path(run_dir)
@@ -218,8 +244,14 @@ class PeriodicEvaluation(EvalCallback):
         from cathsim_dmc.evaluation.rollouts import run_episodes
 
         act = deterministic_policy(self.model)
-        summaries = run_episodes(self.episode_env, lambda observation, env: act(observation), self.n_eval_episodes,
-                                 self.seed, show_progress=False, log_episodes=False)
+        summaries = run_episodes(
+            self.episode_env,
+            lambda observation, env: act(observation),
+            self.n_eval_episodes,
+            self.seed,
+            show_progress=False,
+            log_episodes=False,
+        )
 
         def mean(key):
             return float(np.mean([float(s[key]) for s in summaries]))
@@ -232,12 +264,20 @@ class PeriodicEvaluation(EvalCallback):
         if self.run_dir is None:
             new_best = (success_rate, mean_return) > (self.best_success_rate, self.best_mean_reward)
         else:
-            new_best = keep_if_best(self.model, self.run_dir, self.num_timesteps, success_rate, mean_return,
-                                    episodes=self.n_eval_episodes)
-            append_evaluation(self.run_dir, {
-                "step": int(self.num_timesteps), "success_rate": success_rate, "mean_return": mean_return,
-                "mean_episode_length": mean_length, "episodes": self.n_eval_episodes,
-                "wall_s": round(time.time() - self._start_wall, 1)})
+            new_best = keep_if_best(
+                self.model, self.run_dir, self.num_timesteps, success_rate, mean_return, episodes=self.n_eval_episodes
+            )
+            append_evaluation(
+                self.run_dir,
+                {
+                    "step": int(self.num_timesteps),
+                    "success_rate": success_rate,
+                    "mean_return": mean_return,
+                    "mean_episode_length": mean_length,
+                    "episodes": self.n_eval_episodes,
+                    "wall_s": round(time.time() - self._start_wall, 1),
+                },
+            )
         if new_best:
             self.best_success_rate, self.best_mean_reward = success_rate, mean_return
         return new_best
@@ -284,8 +324,8 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     """
     import hashlib
 
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
     from cathsim_dmc.evaluation.rollouts import run_episodes
+    from cathsim_dmc.learning.agents import load_checkpoint_policy
 
     run_dir = Path(run_dir)
     best = best_record(run_dir)
@@ -299,8 +339,15 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
         path = ckpt_dir / (BEST_MODEL if e["step"] == best["step"] else f"step_{e['step']}.zip")
         if path.is_file() and e["step"] not in files:
             files[e["step"]] = (path, e)
-    record = dict(best, tie_break={"episodes": int(extra_episodes), "first_seed": int(seed + periodic_episodes),
-                                   "after_step": int(evaluations[-1]["step"]), "scores": []})
+    record = dict(
+        best,
+        tie_break={
+            "episodes": int(extra_episodes),
+            "first_seed": int(seed + periodic_episodes),
+            "after_step": int(evaluations[-1]["step"]),
+            "scores": [],
+        },
+    )
     candidates, seen = [], set()
     for step, (path, e) in files.items():
         policy = load_checkpoint_policy(path)
@@ -318,8 +365,9 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     scores = []
     try:
         for step, path, e, policy in candidates:
-            summaries = run_episodes(env, policy, extra_episodes, seed + periodic_episodes, show_progress=False,
-                                     log_episodes=False)
+            summaries = run_episodes(
+                env, policy, extra_episodes, seed + periodic_episodes, show_progress=False, log_episodes=False
+            )
             played = int(e.get("episodes", periodic_episodes))  # the periodic evaluation's own count
             n = played + extra_episodes
             success = (e["success_rate"] * played + sum(float(s["success"]) for s in summaries)) / n

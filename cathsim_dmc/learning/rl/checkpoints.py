@@ -43,12 +43,26 @@ def checkpoint_interval(trainer: dict) -> int:
     return int(trainer.get("eval_every") or 0) or CHECKPOINT_EVERY_WITHOUT_EVALUATION
 
 
-def write_policy_file(run_dir: Path, cfg_obs: str, task: str, aorta: str, image_options: dict | None = None,
-                      env_options: dict | None = None, normalize_observations: bool = False) -> None:
+def write_policy_file(
+    run_dir: Path,
+    cfg_obs: str,
+    task: str,
+    aorta: str,
+    image_options: dict | None = None,
+    env_options: dict | None = None,
+    normalize_observations: bool = False,
+) -> None:
     """policy.json: what evaluating the checkpoint needs (observation preset, image options,
     and the environment options it was trained with that change what it sees or drives)."""
-    info = {"algo": "sac", "obs": cfg_obs, "image_options": dict(image_options or {}), "task": task, "aorta": aorta,
-            "env_options": dict(env_options or {}), "normalize_observations": bool(normalize_observations)}
+    info = {
+        "algo": "sac",
+        "obs": cfg_obs,
+        "image_options": dict(image_options or {}),
+        "task": task,
+        "aorta": aorta,
+        "env_options": dict(env_options or {}),
+        "normalize_observations": bool(normalize_observations),
+    }
     run_files.write_atomic(Path(run_dir) / run_files.POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info)))
 
 
@@ -126,8 +140,10 @@ def resume_checkpoint(folder: Path) -> tuple:
         return last, step, buffers[step]
     if buffers:
         found = ", ".join(p.name for p in buffers.values())
-        raise RuntimeError(f"{last} is at step {step} but the replay buffer in {folder} ({found}) is not; "
-                           f"delete the buffer to resume with an empty one")
+        raise RuntimeError(
+            f"{last} is at step {step} but the replay buffer in {folder} ({found}) is not; "
+            f"delete the buffer to resume with an empty one"
+        )
     # An older run's single file: its step is checked from its contents once loaded.
     legacy = folder / LEGACY_REPLAY_BUFFER
     return last, step, legacy if legacy.is_file() else None
@@ -140,12 +156,15 @@ def check_replay_buffer_step(buffer, step: int, source) -> None:
     rows = buffer.buffer_size if buffer.full else buffer.pos
     if buffer.full and rows * buffer.n_envs <= step or not buffer.full and rows * buffer.n_envs == step:
         return
-    raise RuntimeError(f"{source} holds {rows * buffer.n_envs:,} transitions{' (full)' if buffer.full else ''}, "
-                       f"not the {step:,} of the checkpoint it was saved with; delete it to resume with an empty one")
+    raise RuntimeError(
+        f"{source} holds {rows * buffer.n_envs:,} transitions{' (full)' if buffer.full else ''}, "
+        f"not the {step:,} of the checkpoint it was saved with; delete it to resume with an empty one"
+    )
 
 
-def keep_if_best(model, run_dir: Path, step: int, success_rate: float, mean_return: float,
-                 episodes: int | None = None) -> bool:
+def keep_if_best(
+    model, run_dir: Path, step: int, success_rate: float, mean_return: float, episodes: int | None = None
+) -> bool:
     """Save `model` as best.zip if its evaluation beats the best so far (success rate first,
     then return; a tie keeps the earlier one). best.json records the scores, the step and
     how many episodes the scores are over."""

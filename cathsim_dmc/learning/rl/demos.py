@@ -40,21 +40,49 @@ class DemoReplayBuffer(DictReplayBuffer):
 
     labels = None  # buffers pickled before expert labels existed have none
 
-    def __init__(self, buffer_size, observation_space, action_space, device="auto", n_envs: int = 1,
-                 optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
-                 demo_share: float = 0.5, demo_capacity: int = 20_000, label_capacity: int = 0):
+    def __init__(
+        self,
+        buffer_size,
+        observation_space,
+        action_space,
+        device="auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        demo_share: float = 0.5,
+        demo_capacity: int = 20_000,
+        label_capacity: int = 0,
+    ):
         if not 0.0 <= demo_share <= 1.0:
             raise ValueError(f"demo_share={demo_share!r} must be in [0, 1]")
-        super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
-                         optimize_memory_usage=optimize_memory_usage,
-                         handle_timeout_termination=handle_timeout_termination)
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+        )
         self.demo_share = float(demo_share)
-        self.demos = DictReplayBuffer(max(int(demo_capacity), 1), observation_space, action_space, device=device,
-                                      n_envs=1, handle_timeout_termination=handle_timeout_termination)
+        self.demos = DictReplayBuffer(
+            max(int(demo_capacity), 1),
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=1,
+            handle_timeout_termination=handle_timeout_termination,
+        )
         self.labels = None
         if int(label_capacity) > 0:
-            self.labels = DictReplayBuffer(int(label_capacity), observation_space, action_space, device=device,
-                                           n_envs=1, handle_timeout_termination=False)
+            self.labels = DictReplayBuffer(
+                int(label_capacity),
+                observation_space,
+                action_space,
+                device=device,
+                n_envs=1,
+                handle_timeout_termination=False,
+            )
 
     def label_count(self) -> int:
         return 0 if self.labels is None else self.labels.size()
@@ -67,8 +95,11 @@ class DemoReplayBuffer(DictReplayBuffer):
             data = self.demos.sample(batch_size, env)
             return data.observations, data.actions
         from_labels = int(np.random.binomial(batch_size, labels / (labels + self.demos.size())))
-        parts = [buffer.sample(n, env) for buffer, n in ((self.demos, batch_size - from_labels),
-                                                          (self.labels, from_labels)) if n > 0]
+        parts = [
+            buffer.sample(n, env)
+            for buffer, n in ((self.demos, batch_size - from_labels), (self.labels, from_labels))
+            if n > 0
+        ]
         observations = {k: torch.cat([p.observations[k] for p in parts]) for k in parts[0].observations}
         return observations, torch.cat([p.actions for p in parts])
 
@@ -127,11 +158,12 @@ def expert_transitions(env, episodes: int, seed: int = 0, policy=None, progress:
     from cathsim_dmc.control.expert import CenterlineExpert
 
     policy = policy or CenterlineExpert()
-    return _rollouts(env, episodes, seed, lambda: (lambda obs, env, step: (policy(obs, env), True)), progress)
+    return _rollouts(env, episodes, seed, lambda: lambda obs, env, step: (policy(obs, env), True), progress)
 
 
-def takeover_transitions(env, student, episodes: int, seed: int = 0, max_student_steps: int = 200,
-                         progress: str | None = None, expert=None) -> Transitions:
+def takeover_transitions(
+    env, student, episodes: int, seed: int = 0, max_student_steps: int = 200, progress: str | None = None, expert=None
+) -> Transitions:
     """Demonstrations from where the student goes: in each episode `student(observation)`
     drives for a random number of steps (0 to `max_student_steps`, drawn from `seed`), then
     the scripted expert (or `expert`, a `CenterlineExpert`) takes over to the end of the
@@ -177,8 +209,7 @@ class Labels:
         return len(self.actions)
 
 
-def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None,
-                  expert=None) -> Labels:
+def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | None = None, expert=None) -> Labels:
     """DAgger's data (Ross et al., 2011): `student(observation)` drives `episodes` episodes
     (seeds `seed`, `seed + 1`, ...) and the scripted expert (or `expert`), asked at every step, labels
     each state with the action it would take there. The expert follows the student's
@@ -197,8 +228,12 @@ def expert_labels(env, student, episodes: int, seed: int = 0, progress: str | No
 
     driven = _rollouts(env, episodes, seed, lambda: act, progress)
     stacked = {k: np.stack([o[k] for o in observations]) for k in observations[0]} if observations else {}
-    return Labels(stacked, np.stack(actions) if actions else np.zeros((0, *env.action_space.shape), np.float32),
-                  driven.episodes, driven.successes)
+    return Labels(
+        stacked,
+        np.stack(actions) if actions else np.zeros((0, *env.action_space.shape), np.float32),
+        driven.episodes,
+        driven.successes,
+    )
 
 
 def add_labels(buffer: DemoReplayBuffer, labels: Labels) -> None:
@@ -206,8 +241,8 @@ def add_labels(buffer: DemoReplayBuffer, labels: Labels) -> None:
     if buffer.labels is None:
         raise ValueError("this buffer keeps no expert labels (label_capacity=0)")
     for i in range(len(labels)):
-        obs = {k: v[i:i + 1] for k, v in labels.observations.items()}
-        buffer.labels.add(obs, obs, labels.actions[i:i + 1], np.zeros(1, np.float32), np.zeros(1, bool), [{}])
+        obs = {k: v[i : i + 1] for k, v in labels.observations.items()}
+        buffer.labels.add(obs, obs, labels.actions[i : i + 1], np.zeros(1, np.float32), np.zeros(1, bool), [{}])
 
 
 def _rollouts(env, episodes: int, seed: int, make_policy, progress: str | None = None) -> Transitions:
@@ -232,27 +267,49 @@ def _rollouts(env, episodes: int, seed: int, make_policy, progress: str | None =
         steps_taken += step
     if not rows["obs"]:
         empty = {k: np.zeros((0, *space.shape), space.dtype) for k, space in env.observation_space.spaces.items()}
-        return Transitions(empty, dict(empty), np.zeros((0, *env.action_space.shape), np.float32),
-                           np.zeros(0, np.float32), np.zeros(0, bool), np.zeros(0, bool), int(episodes), successes,
-                           steps_taken)
+        return Transitions(
+            empty,
+            dict(empty),
+            np.zeros((0, *env.action_space.shape), np.float32),
+            np.zeros(0, np.float32),
+            np.zeros(0, bool),
+            np.zeros(0, bool),
+            int(episodes),
+            successes,
+            steps_taken,
+        )
     stack = lambda dicts: {k: np.stack([d[k] for d in dicts]) for k in dicts[0]}  # noqa: E731
-    return Transitions(stack(rows["obs"]), stack(rows["next_obs"]), np.stack(rows["action"]),
-                       np.asarray(rows["reward"], dtype=np.float32), np.asarray(rows["terminated"]),
-                       np.asarray(rows["truncated"]), int(episodes), successes, steps_taken)
+    return Transitions(
+        stack(rows["obs"]),
+        stack(rows["next_obs"]),
+        np.stack(rows["action"]),
+        np.asarray(rows["reward"], dtype=np.float32),
+        np.asarray(rows["terminated"]),
+        np.asarray(rows["truncated"]),
+        int(episodes),
+        successes,
+        steps_taken,
+    )
 
 
 def add_transitions(buffer: DemoReplayBuffer, transitions: Transitions) -> None:
     """Store `transitions` as demonstrations (SB3's timeout convention: a truncation is not a terminal)."""
     room = buffer.demos.buffer_size - buffer.demos.size()
     if len(transitions) > room:
-        raise ValueError(f"{len(transitions):,} demonstration transitions do not fit in demos.capacity="
-                         f"{buffer.demos.buffer_size:,} ({room:,} free); raise demos.capacity")
+        raise ValueError(
+            f"{len(transitions):,} demonstration transitions do not fit in demos.capacity="
+            f"{buffer.demos.buffer_size:,} ({room:,} free); raise demos.capacity"
+        )
     for i in range(len(transitions)):
         done = bool(transitions.terminated[i] or transitions.truncated[i])
-        buffer.demos.add({k: v[i:i + 1] for k, v in transitions.observations.items()},
-                         {k: v[i:i + 1] for k, v in transitions.next_observations.items()},
-                         transitions.actions[i:i + 1], transitions.rewards[i:i + 1], np.array([done]),
-                         [{"TimeLimit.truncated": bool(transitions.truncated[i])}])
+        buffer.demos.add(
+            {k: v[i : i + 1] for k, v in transitions.observations.items()},
+            {k: v[i : i + 1] for k, v in transitions.next_observations.items()},
+            transitions.actions[i : i + 1],
+            transitions.rewards[i : i + 1],
+            np.array([done]),
+            [{"TimeLimit.truncated": bool(transitions.truncated[i])}],
+        )
 
 
 def dataset_transitions(paths, task, observation_space, episodes: int | None = None) -> Transitions:
@@ -273,12 +330,14 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
     for key in keys:
         want, have = observation_space[key].shape, after[f"obs_{key}"].shape[1:]
         if tuple(want) != tuple(have):
-            raise ValueError(f"the dataset's {key} has shape {tuple(have)} but the training environment's is "
-                             f"{tuple(want)}; collect the demonstrations again with this version")
+            raise ValueError(
+                f"the dataset's {key} has shape {tuple(have)} but the training environment's is "
+                f"{tuple(want)}; collect the demonstrations again with this version"
+            )
     episode = after["episode"]
     keep = np.ones(len(episode), dtype=bool)
     if episodes is not None:  # the first `episodes` episodes
-        keep = np.isin(episode, np.unique(episode)[:int(episodes)])
+        keep = np.isin(episode, np.unique(episode)[: int(episodes)])
     tip = after["tip_position_m"].astype(float)
     distance = np.array([task.distance_for_reward_m(p) for p in tip])
     # The distance before each step: the previous row's, or at the episode's start.
@@ -287,18 +346,27 @@ def dataset_transitions(paths, task, observation_space, episodes: int | None = N
     first = after["step"] == 1
     start_tips = _episode_start_tips(paths)
     previous[first] = [task.distance_for_reward_m(p) for p in start_tips[episode[first]]]
-    rewards = np.array([task.reward_for(p, d, bool(s)) for p, d, s in zip(previous, distance, after["success"])],
-                       dtype=np.float32)
+    rewards = np.array(
+        [task.reward_for(p, d, bool(s)) for p, d, s in zip(previous, distance, after["success"])], dtype=np.float32
+    )
     take = lambda arrays: {k: arrays[f"obs_{k}"][keep] for k in keys}  # noqa: E731
     chosen = np.unique(episode[keep])
-    return Transitions(take(before), take(after), after["action"][keep].astype(np.float32), rewards[keep],
-                       after["terminated"][keep].astype(bool), after["truncated"][keep].astype(bool),
-                       len(chosen), int(after["terminated"][keep].sum()))
+    return Transitions(
+        take(before),
+        take(after),
+        after["action"][keep].astype(np.float32),
+        rewards[keep],
+        after["terminated"][keep].astype(bool),
+        after["truncated"][keep].astype(bool),
+        len(chosen),
+        int(after["terminated"][keep].sum()),
+    )
 
 
 def _episode_start_tips(paths) -> np.ndarray:
     """start_tip_position_m of every episode, in the global episode order of load_arrays."""
     from cathsim_dmc.learning.datasets import expand_paths, read_keys
 
-    return np.concatenate([read_keys(p, ("start_tip_position_m",))["start_tip_position_m"]
-                           for p in expand_paths(paths)]).astype(float)
+    return np.concatenate(
+        [read_keys(p, ("start_tip_position_m",))["start_tip_position_m"] for p in expand_paths(paths)]
+    ).astype(float)

@@ -27,7 +27,8 @@ def check_replay_memory(observation_space, action_dim: int, buffer_size: int, fr
         raise MemoryError(
             f"replay buffer of {buffer_size:,} transitions needs ~{need / 2**30:.1f} GiB "
             f"({per:,} B each) but {have / 2**30:.1f} GiB is available; "
-            f"lower algo.buffer_size (at most ~{fits:,} here)")
+            f"lower algo.buffer_size (at most ~{fits:,} here)"
+        )
     return need
 
 
@@ -45,8 +46,15 @@ def grow_replay_buffer(model, capacity: int) -> None:
     # A DemoReplayBuffer keeps its demonstrations and expert labels (buffers of their own)
     # and its batch share.
     extra = dict(demo_share=old.demo_share, demo_capacity=1) if with_demos else {}
-    new = type(old)(capacity, old.observation_space, old.action_space, device=old.device, n_envs=old.n_envs,
-                    handle_timeout_termination=old.handle_timeout_termination, **extra)
+    new = type(old)(
+        capacity,
+        old.observation_space,
+        old.action_space,
+        device=old.device,
+        n_envs=old.n_envs,
+        handle_timeout_termination=old.handle_timeout_termination,
+        **extra,
+    )
     if with_demos:
         new.demos, new.labels = old.demos, getattr(old, "labels", None)
     rows = old.buffer_size if old.full else old.pos

@@ -63,8 +63,7 @@ def warm_up_critic(model, steps: int, batch_size: int | None = None, progress: s
     `progress` labels a progress bar (None: none).
     """
     batch_size = int(batch_size or model.batch_size)
-    ent_coef = (torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None
-                else model.ent_coef_tensor)
+    ent_coef = torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None else model.ent_coef_tensor
     model.critic.set_training_mode(True)
     loss_value = float("nan")
     for _ in _steps(steps, progress):
@@ -221,8 +220,12 @@ class SACfD(SAC):
             if step % self.target_update_interval == 0:
                 polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
                 polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
-            for key, value in (("critic_loss", critic_loss), ("actor_loss", actor_loss), ("bc_loss", bc_loss),
-                               ("ent_coef", ent_coef)):
+            for key, value in (
+                ("critic_loss", critic_loss),
+                ("actor_loss", actor_loss),
+                ("bc_loss", bc_loss),
+                ("ent_coef", ent_coef),
+            ):
                 stats[key].append(float(value.item()))
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")

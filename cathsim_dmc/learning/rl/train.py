@@ -14,12 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.core import run_files
 from cathsim_dmc.app.train_schema import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.control.policies import make_policy
-from cathsim_dmc.learning.rl.checkpoints import (CHECKPOINT_DIR, FINAL_MODEL, LAST_CHECKPOINT, check_replay_buffer_step,
-                                        checkpoint_interval, checkpoint_step, resume_checkpoint, save_checkpoint,
-                                        save_model, write_policy_file)
+from cathsim_dmc.core import run_files
+from cathsim_dmc.learning.rl.checkpoints import (
+    CHECKPOINT_DIR,
+    FINAL_MODEL,
+    LAST_CHECKPOINT,
+    check_replay_buffer_step,
+    checkpoint_interval,
+    checkpoint_step,
+    resume_checkpoint,
+    save_checkpoint,
+    save_model,
+    write_policy_file,
+)
 from cathsim_dmc.learning.rl.replay import check_replay_memory, grow_replay_buffer
 
 log = logging.getLogger("cathsim-train")
@@ -79,8 +88,8 @@ def make_vec_env(task, aorta, obs, seed, n_envs, task_kwargs):
 def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | None, demos: dict | None = None):
     """SAC on `env` from an `algo` config; with `demos` (its `share`, `capacity`) the replay
     buffer mixes demonstrations into every batch (`cathsim_dmc.learning.rl.demos.DemoReplayBuffer`)."""
-    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer
     from cathsim_dmc.learning.networks import ENNExtractor, LayerNormSACPolicy
+    from cathsim_dmc.learning.rl.demos import DemoReplayBuffer
     from cathsim_dmc.learning.rl.sacfd import SACfD
 
     algo = with_defaults(AlgoConfig, algo)
@@ -92,20 +101,35 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
     )
     with_demos = {}
     if demos:
-        with_demos = dict(replay_buffer_class=DemoReplayBuffer, bc_weight=float(demos["bc_weight"]),
-                          replay_buffer_kwargs=dict(demo_share=float(demos["share"]),
-                                                    demo_capacity=int(demos["capacity"])))
+        with_demos = dict(
+            replay_buffer_class=DemoReplayBuffer,
+            bc_weight=float(demos["bc_weight"]),
+            replay_buffer_kwargs=dict(demo_share=float(demos["share"]), demo_capacity=int(demos["capacity"])),
+        )
         if int(demos["dagger_rounds"]) > 0:
             with_demos["replay_buffer_kwargs"]["label_capacity"] = int(demos["dagger_capacity"])
     policy = LayerNormSACPolicy if algo["critic_layer_norm"] else "MultiInputPolicy"
     return SACfD(
-        policy, env, **with_demos, actor_average_tau=float(algo["actor_average_tau"]),
-        learning_rate=algo["learning_rate"], buffer_size=int(algo["buffer_size"]),
-        learning_starts=int(algo["learning_starts"]), batch_size=int(algo["batch_size"]),
-        tau=algo["tau"], gamma=algo["gamma"], train_freq=int(algo["train_freq"]),
-        gradient_steps=int(algo["gradient_steps"]), target_update_interval=int(algo["target_update_interval"]),
-        target_entropy=float(algo["target_entropy"]), ent_coef=algo["ent_coef"],
-        policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_dir, seed=seed, device=device, verbose=0,
+        policy,
+        env,
+        **with_demos,
+        actor_average_tau=float(algo["actor_average_tau"]),
+        learning_rate=algo["learning_rate"],
+        buffer_size=int(algo["buffer_size"]),
+        learning_starts=int(algo["learning_starts"]),
+        batch_size=int(algo["batch_size"]),
+        tau=algo["tau"],
+        gamma=algo["gamma"],
+        train_freq=int(algo["train_freq"]),
+        gradient_steps=int(algo["gradient_steps"]),
+        target_update_interval=int(algo["target_update_interval"]),
+        target_entropy=float(algo["target_entropy"]),
+        ent_coef=algo["ent_coef"],
+        policy_kwargs=policy_kwargs,
+        tensorboard_log=tensorboard_dir,
+        seed=seed,
+        device=device,
+        verbose=0,
     )
 
 
@@ -128,10 +152,23 @@ class TrainResult:
     seconds: float
 
 
-def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, task: str, aorta: str,
-          resume: bool = False, make_eval_env=None, image_options: dict | None = None,
-          demos: dict | None = None, make_demo_env=None, env_options: dict | None = None,
-          callbacks: list | None = None) -> TrainResult:
+def train(
+    env,
+    run_dir: Path,
+    algo: dict,
+    trainer: dict,
+    seed: int,
+    obs: str,
+    task: str,
+    aorta: str,
+    resume: bool = False,
+    make_eval_env=None,
+    image_options: dict | None = None,
+    demos: dict | None = None,
+    make_demo_env=None,
+    env_options: dict | None = None,
+    callbacks: list | None = None,
+) -> TrainResult:
     """Train (or continue) SAC on `env` (a VecEnv) until trainer["total_timesteps"].
 
     With `demos` (`episodes` > 0), `make_demo_env()` builds an environment like the
@@ -176,15 +213,21 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
             check_replay_buffer_step(model.replay_buffer, step, buffer_file)
         else:
             refill = max(int(algo["learning_starts"]), int(algo["batch_size"]))
-            log.warning("no replay buffer was saved with %s (step %d): the policy refills an empty one for %d "
-                        "steps before training goes on", last, step, refill)
+            log.warning(
+                "no replay buffer was saved with %s (step %d): the policy refills an empty one for %d "
+                "steps before training goes on",
+                last,
+                step,
+                refill,
+            )
             model.refill_before_training(refill)
         grow_replay_buffer(model, capacity)
     else:
         run_files.remove_temporaries(ckpt_dir)
         model = build_sac(env, algo, seed, trainer["device"], tb_dir, demos if _use_demos(demos) else None)
-        write_policy_file(run_dir, obs, task, aorta, image_options, env_options,
-                          bool(trainer.get("normalize_observations")))
+        write_policy_file(
+            run_dir, obs, task, aorta, image_options, env_options, bool(trainer.get("normalize_observations"))
+        )
     start_steps = model.num_timesteps
     try:
         seconds = _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, make_demo_env, callbacks)
@@ -198,15 +241,22 @@ def train(env, run_dir: Path, algo: dict, trainer: dict, seed: int, obs: str, ta
         from cathsim_dmc.learning.rl.callbacks import break_best_tie
 
         try:
-            record = break_best_tie(run_dir, make_eval_env, trainer["eval_episodes"], trainer["tie_break_episodes"],
-                                    20_000 + seed)
+            record = break_best_tie(
+                run_dir, make_eval_env, trainer["eval_episodes"], trainer["tie_break_episodes"], 20_000 + seed
+            )
         except KeyboardInterrupt:
-            raise run_files.Interrupted(f"training finished ({run_dir / FINAL_MODEL}); choosing best.zip among tied "
-                                        f"checkpoints stopped; finish it with: cathsim-train resume={run_dir}") from None
+            raise run_files.Interrupted(
+                f"training finished ({run_dir / FINAL_MODEL}); choosing best.zip among tied "
+                f"checkpoints stopped; finish it with: cathsim-train resume={run_dir}"
+            ) from None
         if record is not None:
-            log.info("best.zip: step %d of the tied %s, %.0f%% success over %d selection episodes",
-                     record["step"], ", ".join(str(c["step"]) for c in record["tie_break"]["scores"]),
-                     100 * record["success_rate"], record["episodes"])
+            log.info(
+                "best.zip: step %d of the tied %s, %.0f%% success over %d selection episodes",
+                record["step"],
+                ", ".join(str(c["step"]) for c in record["tie_break"]["scores"]),
+                100 * record["success_rate"],
+                record["episodes"],
+            )
     return TrainResult(model, run_dir, model.num_timesteps - start_steps, seconds)
 
 
@@ -215,8 +265,10 @@ def _interrupted(run_dir: Path, total: int) -> str:
     last = run_dir / CHECKPOINT_DIR / LAST_CHECKPOINT
     if not last.is_file():
         return f"training stopped before its first checkpoint; nothing to resume in {run_dir}: start it again"
-    return (f"training stopped; checkpoint at step {checkpoint_step(last)} of {total} kept in {last}; "
-            f"continue with: cathsim-train resume={run_dir}")
+    return (
+        f"training stopped; checkpoint at step {checkpoint_step(last)} of {total} kept in {last}; "
+        f"continue with: cathsim-train resume={run_dir}"
+    )
 
 
 def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, make_demo_env, callbacks) -> float:
@@ -228,23 +280,41 @@ def _learn(model, env, run_dir, trainer, seed, demos, resume, make_eval_env, mak
 
     total, ckpt_dir = int(trainer["total_timesteps"]), run_dir / CHECKPOINT_DIR
     if _use_demos(demos) and model.num_timesteps < total:  # a finished run resumed needs none
-        load_demonstrations(model, demos, make_demo_env, seed, pretrain=not resume,
-                            show_progress=trainer["progress_bar"], labels_path=run_dir / CHECKPOINT_DIR / LABELS_FILE)
+        load_demonstrations(
+            model,
+            demos,
+            make_demo_env,
+            seed,
+            pretrain=not resume,
+            show_progress=trainer["progress_bar"],
+            labels_path=run_dir / CHECKPOINT_DIR / LABELS_FILE,
+        )
     t0, remaining = time.perf_counter(), total - model.num_timesteps
     if remaining > 0:
-        built_in = [EpisodeStats(),
-                    Checkpoints(checkpoint_interval(trainer), ckpt_dir, trainer["save_replay_buffer"])]
+        built_in = [EpisodeStats(), Checkpoints(checkpoint_interval(trainer), ckpt_dir, trainer["save_replay_buffer"])]
         if trainer["eval_every"] > 0 and make_eval_env is not None:
             # Selection episodes are seeded apart from the final report's (10_000 + seed), so
             # the report is not scored on the episodes the best checkpoint was chosen on, and
             # apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
-            built_in.append(PeriodicEvaluation(make_eval_env(), trainer["eval_every"], trainer["eval_episodes"],
-                                               20_000 + seed, run_dir=run_dir,
-                                               evaluate_at_start=trainer["eval_at_start"]))
+            built_in.append(
+                PeriodicEvaluation(
+                    make_eval_env(),
+                    trainer["eval_every"],
+                    trainer["eval_episodes"],
+                    20_000 + seed,
+                    run_dir=run_dir,
+                    evaluate_at_start=trainer["eval_at_start"],
+                )
+            )
         if trainer["progress_bar"]:
             built_in.append(Progress(total))
-        model.learn(total_timesteps=remaining, callback=CallbackList([*built_in, *(callbacks or [])]),
-                    log_interval=1, tb_log_name="sac", reset_num_timesteps=not resume)
+        model.learn(
+            total_timesteps=remaining,
+            callback=CallbackList([*built_in, *(callbacks or [])]),
+            log_interval=1,
+            tb_log_name="sac",
+            reset_num_timesteps=not resume,
+        )
     return time.perf_counter() - t0
 
 
@@ -266,18 +336,32 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int, show_progress
     try:
         for round_index in range(int(demos["takeover_rounds"])):
             t0 = time.perf_counter()
-            transitions = takeover_transitions(env, student, int(demos["takeover_episodes"]),
-                                               seed=40_000 + 1000 * seed + 100 * round_index,
-                                               max_student_steps=int(demos["takeover_max_student_steps"]),
-                                               progress=label(f"takeover round {round_index + 1}"),
-                                               expert=make_policy(demos["expert"]))
+            transitions = takeover_transitions(
+                env,
+                student,
+                int(demos["takeover_episodes"]),
+                seed=40_000 + 1000 * seed + 100 * round_index,
+                max_student_steps=int(demos["takeover_max_student_steps"]),
+                progress=label(f"takeover round {round_index + 1}"),
+                expert=make_policy(demos["expert"]),
+            )
             add_transitions(model.replay_buffer, transitions)
-            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]) // 2,
-                                  progress=label(f"round {round_index + 1}: re-training the actor"))
-            log.info("takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
-                     "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s", round_index + 1,
-                     transitions.episodes, transitions.steps_taken, len(transitions), transitions.successes,
-                     loss, time.perf_counter() - t0)
+            loss = pretrain_actor(
+                model,
+                int(demos["pretrain_actor_steps"]) // 2,
+                progress=label(f"round {round_index + 1}: re-training the actor"),
+            )
+            log.info(
+                "takeover round %d: %d episodes, %d environment steps, %d expert transitions kept "
+                "(%d reached the target); actor re-trained, action MSE %.4f; %.0f s",
+                round_index + 1,
+                transitions.episodes,
+                transitions.steps_taken,
+                len(transitions),
+                transitions.successes,
+                loss,
+                time.perf_counter() - t0,
+            )
     finally:
         env.close()
 
@@ -285,8 +369,9 @@ def _takeover_rounds(model, demos: dict, make_demo_env, seed: int, show_progress
 LABELS_FILE = "expert_labels.npz"  # in the checkpoint folder: a resumed run keeps its DAgger labels
 
 
-def _dagger_rounds(model, demos: dict, make_demo_env, seed: int, labels_path: Path | None,
-                   show_progress: bool = False) -> None:
+def _dagger_rounds(
+    model, demos: dict, make_demo_env, seed: int, labels_path: Path | None, show_progress: bool = False
+) -> None:
     """`demos["dagger_rounds"]` rounds of DAgger: the current actor drives, the expert labels
     every state (`rl.demos.expert_labels`), the labels join the buffer's and the actor is
     re-trained on demonstrations and labels for `pretrain_actor_steps`. The labels are
@@ -301,17 +386,31 @@ def _dagger_rounds(model, demos: dict, make_demo_env, seed: int, labels_path: Pa
         for round_index in range(int(demos["dagger_rounds"])):
             t0 = time.perf_counter()
             # Seeds apart from the demonstrations' (30_000+) and the takeover rounds' (40_000+).
-            labels = expert_labels(env, student, int(demos["dagger_episodes"]),
-                                   seed=50_000 + 1000 * seed + 100 * round_index,
-                                   progress=label(f"DAgger round {round_index + 1}"),
-                                   expert=make_policy(demos["expert"]))
+            labels = expert_labels(
+                env,
+                student,
+                int(demos["dagger_episodes"]),
+                seed=50_000 + 1000 * seed + 100 * round_index,
+                progress=label(f"DAgger round {round_index + 1}"),
+                expert=make_policy(demos["expert"]),
+            )
             add_labels(model.replay_buffer, labels)
-            loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]),
-                                  progress=label(f"round {round_index + 1}: re-training the actor"))
-            log.info("DAgger round %d: the actor reached the target in %d of %d episodes; %d states labelled "
-                     "(%d in all); actor re-trained, action MSE %.4f; %.0f s", round_index + 1, labels.successes,
-                     labels.episodes, len(labels), model.replay_buffer.label_count(), loss,
-                     time.perf_counter() - t0)
+            loss = pretrain_actor(
+                model,
+                int(demos["pretrain_actor_steps"]),
+                progress=label(f"round {round_index + 1}: re-training the actor"),
+            )
+            log.info(
+                "DAgger round %d: the actor reached the target in %d of %d episodes; %d states labelled "
+                "(%d in all); actor re-trained, action MSE %.4f; %.0f s",
+                round_index + 1,
+                labels.successes,
+                labels.episodes,
+                len(labels),
+                model.replay_buffer.label_count(),
+                loss,
+                time.perf_counter() - t0,
+            )
     finally:
         env.close()
     if labels_path is not None:
@@ -337,8 +436,15 @@ def load_labels(buffer, path: Path) -> int:
     return len(labels)
 
 
-def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: bool = True,
-                        show_progress: bool = False, labels_path: Path | None = None) -> None:
+def load_demonstrations(
+    model,
+    demos: dict,
+    make_demo_env,
+    seed: int,
+    pretrain: bool = True,
+    show_progress: bool = False,
+    labels_path: Path | None = None,
+) -> None:
     """Record the expert's episodes (or read them from `demos["path"]`) into the model's
     DemoReplayBuffer, then (on a new run) pre-train the actor and warm up the critic on
     them; each stage is logged with its size, loss and time, and with `show_progress`
@@ -358,13 +464,18 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
         try:
             t0 = time.perf_counter()
             if demos["path"]:
-                transitions = dataset_transitions(demos["path"], env.task, env.observation_space,
-                                                  int(demos["episodes"]))
+                transitions = dataset_transitions(
+                    demos["path"], env.task, env.observation_space, int(demos["episodes"])
+                )
             else:
                 # Demonstration seeds are apart from training (seed) and evaluation (10_000+, 20_000+).
-                transitions = expert_transitions(env, int(demos["episodes"]), seed=30_000 + 1000 * seed,
-                                                 policy=make_policy(demos["expert"]),
-                                                 progress=label("recording demonstrations"))
+                transitions = expert_transitions(
+                    env,
+                    int(demos["episodes"]),
+                    seed=30_000 + 1000 * seed,
+                    policy=make_policy(demos["expert"]),
+                    progress=label("recording demonstrations"),
+                )
         finally:
             env.close()
         add_transitions(buffer, transitions)
@@ -372,17 +483,25 @@ def load_demonstrations(model, demos: dict, make_demo_env, seed: int, pretrain: 
         if normalizer is not None:  # start the statistics from the expert's states, not from zero
             for key in normalizer.norm_obs_keys:
                 normalizer.obs_rms[key].update(transitions.observations[key])
-        log.info("demonstrations: %d episodes of %s (%d reached the target), %d transitions, %.0f s",
-                 transitions.episodes, demos["path"] or demos["expert"], transitions.successes, len(transitions),
-                 time.perf_counter() - t0)
+        log.info(
+            "demonstrations: %d episodes of %s (%d reached the target), %d transitions, %.0f s",
+            transitions.episodes,
+            demos["path"] or demos["expert"],
+            transitions.successes,
+            len(transitions),
+            time.perf_counter() - t0,
+        )
     if not pretrain and buffer.labels is not None and buffer.label_count() == 0 and labels_path is not None:
         if labels_path.is_file():  # a resumed run: its DAgger labels, for the cloning term
             log.info("expert labels: %d read from %s", load_labels(buffer, labels_path), labels_path)
     if pretrain:
         if int(demos["pretrain_actor_steps"]) > 0:
             loss = pretrain_actor(model, int(demos["pretrain_actor_steps"]), progress=label("pre-training the actor"))
-            log.info("actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
-                     int(demos["pretrain_actor_steps"]), loss)
+            log.info(
+                "actor pre-trained on the demonstrations: %d steps, action MSE %.4f",
+                int(demos["pretrain_actor_steps"]),
+                loss,
+            )
         if int(demos["takeover_rounds"]) > 0:
             _takeover_rounds(model, demos, make_demo_env, seed, show_progress)
         if int(demos["dagger_rounds"]) > 0:

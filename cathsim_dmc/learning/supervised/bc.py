@@ -54,7 +54,7 @@ class BCNetwork(nn.Module):
 
 
 def weight_l2(net: nn.Module) -> torch.Tensor:
-    return sum((p ** 2).sum() for name, p in net.named_parameters() if name.endswith("weight"))
+    return sum((p**2).sum() for name, p in net.named_parameters() if name.endswith("weight"))
 
 
 def bc_loss(net: BCNetwork, images, actions, entropy_coef: float, l2_coef: float, z=None, z_coef: float = 0.0):
@@ -65,8 +65,12 @@ def bc_loss(net: BCNetwork, images, actions, entropy_coef: float, l2_coef: float
     entropy = dist.entropy().sum(-1).mean()
     l2 = weight_l2(net)
     loss = nll - entropy_coef * entropy + l2_coef * l2
-    terms = {"nll": nll.item(), "entropy": entropy.item(), "l2": l2.item(),
-             "action_mse": ((mean - actions) ** 2).mean().item()}
+    terms = {
+        "nll": nll.item(),
+        "entropy": entropy.item(),
+        "l2": l2.item(),
+        "action_mse": ((mean - actions) ** 2).mean().item(),
+    }
     if z is not None and z_coef > 0:
         z_mse = ((z_hat - z) ** 2).mean()
         loss = loss + z_coef * z_mse
@@ -84,7 +88,7 @@ class BCConfig:
     l2_coef: float = 1e-5
     distill_coef: float = 0.0  # > 0 and Z in the data: regress Z from the image too
     val_fraction: float = 0.1
-    frames: int = 1            # the latest image and the frames - 1 before it, stacked as channels
+    frames: int = 1  # the latest image and the frames - 1 before it, stacked as channels
     seed: int = 0
 
 
@@ -102,10 +106,17 @@ def _evaluate(net, images, actions, rows, cfg, z=None, batch: int = 256) -> dict
     net.eval()
     with torch.no_grad():
         for start in range(0, len(rows), batch):
-            idx = rows[start:start + batch]
+            idx = rows[start : start + batch]
             zb = torch.from_numpy(z[idx]) if z is not None else None
-            _, terms = bc_loss(net, torch.from_numpy(images[idx]), torch.from_numpy(actions[idx]),
-                               cfg.entropy_coef, cfg.l2_coef, zb, cfg.distill_coef)
+            _, terms = bc_loss(
+                net,
+                torch.from_numpy(images[idx]),
+                torch.from_numpy(actions[idx]),
+                cfg.entropy_coef,
+                cfg.l2_coef,
+                zb,
+                cfg.distill_coef,
+            )
             for key, value in terms.items():
                 totals[key] = totals.get(key, 0.0) + value * len(idx)
             count += len(idx)
@@ -113,8 +124,15 @@ def _evaluate(net, images, actions, rows, cfg, z=None, batch: int = 256) -> dict
     return {key: value / max(count, 1) for key, value in totals.items()}
 
 
-def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg: BCConfig, z: np.ndarray | None = None,
-             progress=None, log=None) -> BCResult:
+def train_bc(
+    images: np.ndarray,
+    actions: np.ndarray,
+    episodes: np.ndarray,
+    cfg: BCConfig,
+    z: np.ndarray | None = None,
+    progress=None,
+    log=None,
+) -> BCResult:
     """Fit a student to (image, action) pairs; whole episodes held out for validation.
 
     `images` (N, C, H, W) uint8, `actions` (N, 2) float32, `episodes` (N,) ids, `z` (N, F).
@@ -137,10 +155,17 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
         order = rng.permutation(train_rows)
         sums, n = {}, 0
         for start in range(0, len(order), cfg.batch_size):
-            idx = np.sort(order[start:start + cfg.batch_size])  # sorted: faster gathers
+            idx = np.sort(order[start : start + cfg.batch_size])  # sorted: faster gathers
             zb = torch.from_numpy(z[idx]) if z is not None else None
-            loss, terms = bc_loss(net, torch.from_numpy(images[idx]), torch.from_numpy(actions[idx]),
-                                  cfg.entropy_coef, cfg.l2_coef, zb, cfg.distill_coef)
+            loss, terms = bc_loss(
+                net,
+                torch.from_numpy(images[idx]),
+                torch.from_numpy(actions[idx]),
+                cfg.entropy_coef,
+                cfg.l2_coef,
+                zb,
+                cfg.distill_coef,
+            )
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -149,28 +174,49 @@ def train_bc(images: np.ndarray, actions: np.ndarray, episodes: np.ndarray, cfg:
             n += len(idx)
         train_terms = {key: value / n for key, value in sums.items()}
         val_terms = _evaluate(net, images, actions, val_rows, cfg, z) if len(val_rows) else {}
-        history.append({"epoch": epoch, "seconds": time.perf_counter() - t0,
-                        **{f"train_{k}": v for k, v in train_terms.items()},
-                        **{f"val_{k}": v for k, v in val_terms.items()}})
+        history.append(
+            {
+                "epoch": epoch,
+                "seconds": time.perf_counter() - t0,
+                **{f"train_{k}": v for k, v in train_terms.items()},
+                **{f"val_{k}": v for k, v in val_terms.items()},
+            }
+        )
         if progress is not None:
             progress(epoch, train_terms, val_terms)
     return BCResult(net, history, time.perf_counter() - t0, train_rows, val_rows)
 
 
 # -- checkpoints ------------------------------------------------------------------
-def save_bc(net: BCNetwork, run_dir, image_key: str, image_options: dict | None = None, extra: dict | None = None,
-           frames: int = 1) -> Path:
+def save_bc(
+    net: BCNetwork,
+    run_dir,
+    image_key: str,
+    image_options: dict | None = None,
+    extra: dict | None = None,
+    frames: int = 1,
+) -> Path:
     """bc_policy.pt (weights + shape) and policy.json (how to evaluate it); atomic writes."""
     from cathsim_dmc.core.run_files import POLICY_FILE, write_atomic
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / BC_CHECKPOINT
-    state = {"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim,
-             "image_key": image_key, "frames": int(frames)}
+    state = {
+        "state_dict": net.state_dict(),
+        "image_shape": list(net.image_shape),
+        "z_dim": net.z_dim,
+        "image_key": image_key,
+        "frames": int(frames),
+    }
     write_atomic(path, lambda tmp: torch.save(state, tmp))
-    info = {"algo": "bc", "obs": PRESET_FOR_IMAGE[image_key], "image_key": image_key,
-            "image_options": dict(image_options or {}), **(extra or {})}
+    info = {
+        "algo": "bc",
+        "obs": PRESET_FOR_IMAGE[image_key],
+        "image_key": image_key,
+        "image_options": dict(image_options or {}),
+        **(extra or {}),
+    }
     write_atomic(run_dir / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
     return path
 

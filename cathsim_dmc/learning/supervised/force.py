@@ -52,14 +52,14 @@ class ForceNetwork(nn.Module):
 class ForceConfig:
     sizes: tuple = (1_000, 10_000, 100_000)
     epochs: int = 20
-    min_updates: int = 2_000       # small subsets still get this many gradient steps
+    min_updates: int = 2_000  # small subsets still get this many gradient steps
     batch_size: int = 32
     learning_rate: float = 1e-3
-    z_coef: float = 1.0            # weight of L_Z when Z is in the data
-    test_fraction: float = 0.2     # episodes held out for the test MSE (same for every size)
-    val_fraction: float = 0.1      # of each subset's episodes: picks the best epoch
+    z_coef: float = 1.0  # weight of L_Z when Z is in the data
+    test_fraction: float = 0.2  # episodes held out for the test MSE (same for every size)
+    val_fraction: float = 0.1  # of each subset's episodes: picks the best epoch
     seed: int = 0
-    init_from: str | None = None   # a cathsim-bc run folder or bc_policy.pt: start from its encoder
+    init_from: str | None = None  # a cathsim-bc run folder or bc_policy.pt: start from its encoder
     # Also score without test samples above this force (N): a handful of single-physics-step
     # impulses (the mass-scaled wire striking the wall) can decide a test MSE alone.
     outlier_n: float | None = 10.0
@@ -85,7 +85,7 @@ def _predict(net, images, rows, batch: int = 512) -> np.ndarray:
     out = []
     with torch.no_grad():
         for start in range(0, len(rows), batch):
-            out.append(net(torch.from_numpy(images[rows[start:start + batch]]))[0].numpy())
+            out.append(net(torch.from_numpy(images[rows[start : start + batch]]))[0].numpy())
     net.train()
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
@@ -106,15 +106,18 @@ def initial_network(image_shape, z_dim: int, cfg: ForceConfig) -> ForceNetwork:
             raise FileNotFoundError(f"force.init_from={cfg.init_from!r}: no {BC_CHECKPOINT} there")
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
         if tuple(checkpoint["image_shape"]) != net.image_shape:
-            raise ValueError(f"force.init_from={cfg.init_from!r} takes images {checkpoint['image_shape']}, "
-                             f"the data has {list(net.image_shape)}")
-        encoder = {k[len("encoder."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("encoder.")}
+            raise ValueError(
+                f"force.init_from={cfg.init_from!r} takes images {checkpoint['image_shape']}, "
+                f"the data has {list(net.image_shape)}"
+            )
+        encoder = {k[len("encoder.") :]: v for k, v in checkpoint["state_dict"].items() if k.startswith("encoder.")}
         net.encoder.load_state_dict(encoder)
     return net
 
 
-def train_force(images, force, rows, cfg: ForceConfig, z=None, net: ForceNetwork | None = None, episodes=None,
-                progress=None) -> tuple:
+def train_force(
+    images, force, rows, cfg: ForceConfig, z=None, net: ForceNetwork | None = None, episodes=None, progress=None
+) -> tuple:
     """Fit `net` on `rows`; the best of `val_fraction` held-out episodes is kept.
 
     Returns (net, info) with the number of updates, seconds and the validation MSE.
@@ -136,7 +139,7 @@ def train_force(images, force, rows, cfg: ForceConfig, z=None, net: ForceNetwork
     for epoch in range(1, epochs + 1):
         order = rng.permutation(fit)
         for start in range(0, len(order), cfg.batch_size):
-            idx = np.sort(order[start:start + cfg.batch_size])
+            idx = np.sort(order[start : start + cfg.batch_size])
             pred, z_hat = net(torch.from_numpy(images[idx]))
             loss = ((pred - torch.from_numpy(force[idx])) ** 2).mean()
             if use_z:
@@ -153,8 +156,14 @@ def train_force(images, force, rows, cfg: ForceConfig, z=None, net: ForceNetwork
             progress(epoch, epochs, best)
     if best_state is not None:
         net.load_state_dict(best_state)
-    return net, {"updates": updates, "epochs": epochs, "seconds": time.perf_counter() - t0,
-                 "fit_samples": int(len(fit)), "val_samples": int(len(val)), "val_mse": best}
+    return net, {
+        "updates": updates,
+        "epochs": epochs,
+        "seconds": time.perf_counter() - t0,
+        "fit_samples": int(len(fit)),
+        "val_samples": int(len(val)),
+        "val_mse": best,
+    }
 
 
 def score(prediction, target) -> dict:
@@ -177,35 +186,61 @@ def train_force_sizes(images, force, episodes, cfg: ForceConfig, z=None, out_dir
     for size, rows in nested_subsets(episodes, train_rows, cfg.sizes, cfg.seed):
         net = initial_network(images.shape[1:], z.shape[1] if z is not None else 0, cfg)
         before_prediction = _predict(net, images, test_rows)
-        net, info = train_force(images, force, rows, cfg, z, net, episodes,
-                                (lambda e, n, b, s=len(rows): progress(s, e, n, b)) if progress else None)
+        net, info = train_force(
+            images,
+            force,
+            rows,
+            cfg,
+            z,
+            net,
+            episodes,
+            (lambda e, n, b, s=len(rows): progress(s, e, n, b)) if progress else None,
+        )
         if out_dir is not None:
-            torch.save({"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim},
-                       Path(out_dir) / f"force_model_{len(rows)}.pt")
-        predictions = {"model": _predict(net, images, test_rows),
-                       "train_mean": np.full(len(target), force[rows].mean()),
-                       "before_fine_tuning": before_prediction}
-        results.append({
-            "size_requested": size, "train_samples": int(len(rows)),
-            "train_episodes": int(len(np.unique(episodes[rows]))),
-            **{key: score(p, target) for key, p in predictions.items()},
-            **info,
-        })
+            torch.save(
+                {"state_dict": net.state_dict(), "image_shape": list(net.image_shape), "z_dim": net.z_dim},
+                Path(out_dir) / f"force_model_{len(rows)}.pt",
+            )
+        predictions = {
+            "model": _predict(net, images, test_rows),
+            "train_mean": np.full(len(target), force[rows].mean()),
+            "before_fine_tuning": before_prediction,
+        }
+        results.append(
+            {
+                "size_requested": size,
+                "train_samples": int(len(rows)),
+                "train_episodes": int(len(np.unique(episodes[rows]))),
+                **{key: score(p, target) for key, p in predictions.items()},
+                **info,
+            }
+        )
         if 0 < inliers.sum() < len(inliers):  # only when some, not all, test samples are outliers
-            results[-1]["without_outliers"] = {key: score(p[inliers], target[inliers])
-                                               for key, p in predictions.items()}
-    return {"test_samples": int(len(test_rows)), "test_episodes": int(len(np.unique(episodes[test_rows]))),
-            "train_samples_available": int(len(train_rows)), "test_force_mean_n": float(target.mean()),
-            "test_force_std_n": float(target.std()), "uses_z": z is not None, "outlier_n": cfg.outlier_n,
-            "test_outliers": int((~inliers).sum()), "test_force_max_n": float(target.max()),
-            "test_force_std_without_outliers_n": float(target[inliers].std()) if inliers.any() else math.nan,
-            "sizes": results}
+            results[-1]["without_outliers"] = {
+                key: score(p[inliers], target[inliers]) for key, p in predictions.items()
+            }
+    return {
+        "test_samples": int(len(test_rows)),
+        "test_episodes": int(len(np.unique(episodes[test_rows]))),
+        "train_samples_available": int(len(train_rows)),
+        "test_force_mean_n": float(target.mean()),
+        "test_force_std_n": float(target.std()),
+        "uses_z": z is not None,
+        "outlier_n": cfg.outlier_n,
+        "test_outliers": int((~inliers).sum()),
+        "test_force_max_n": float(target.max()),
+        "test_force_std_without_outliers_n": float(target[inliers].std()) if inliers.any() else math.nan,
+        "sizes": results,
+    }
 
 
 def markdown(report: dict) -> str:
     """force.md: test MSE (N^2) and RMSE (N) per training size, with both baselines."""
-    header = ["| Training samples | Network MSE (N²) | Network RMSE (N) | Train-mean MSE (N²) | Train-mean RMSE (N) "
-              "| Before fine-tuning MSE (N²) | Before fine-tuning RMSE (N) |", "|---|---|---|---|---|---|---|"]
+    header = [
+        "| Training samples | Network MSE (N²) | Network RMSE (N) | Train-mean MSE (N²) | Train-mean RMSE (N) "
+        "| Before fine-tuning MSE (N²) | Before fine-tuning RMSE (N) |",
+        "|---|---|---|---|---|---|---|",
+    ]
 
     def table(scores_of) -> list:
         rows = list(header)
@@ -221,12 +256,18 @@ def markdown(report: dict) -> str:
 
     lines = table(lambda r: r)
     lines.append("")
-    lines.append(f"Test: {report['test_samples']:,} samples from {report['test_episodes']} held-out episodes "
-                 f"({report.get('label', 'force')} {report['test_force_mean_n']:.3f} ± {report['test_force_std_n']:.3f} N, "
-                 f"max {report.get('test_force_max_n', math.nan):.3g} N); "
-                 f"Z regression {'on' if report['uses_z'] else 'off'}.")
+    lines.append(
+        f"Test: {report['test_samples']:,} samples from {report['test_episodes']} held-out episodes "
+        f"({report.get('label', 'force')} {report['test_force_mean_n']:.3f} ± {report['test_force_std_n']:.3f} N, "
+        f"max {report.get('test_force_max_n', math.nan):.3g} N); "
+        f"Z regression {'on' if report['uses_z'] else 'off'}."
+    )
     if all("without_outliers" in r for r in report["sizes"]):
-        lines += ["", f"Without the {report['test_outliers']} test sample(s) above {report['outlier_n']:g} N "
-                  f"(the rest: {report['test_force_std_without_outliers_n']:.3f} N std):", ""]
+        lines += [
+            "",
+            f"Without the {report['test_outliers']} test sample(s) above {report['outlier_n']:g} N "
+            f"(the rest: {report['test_force_std_without_outliers_n']:.3f} N std):",
+            "",
+        ]
         lines += table(lambda r: r["without_outliers"])
     return "\n".join(lines) + "\n"
