@@ -129,7 +129,7 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     """name -> what make_policy takes, for every policy that exists (a navigator run once it
     has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
-    from cathsim_dmc.learning.pretrained import shipped_targets
+    from cathsim_dmc.agents.pretrained import shipped_targets
 
     if task in shipped_targets():
         found["pretrained"] = "pretrained"
@@ -187,8 +187,8 @@ def evaluate(
     unfinished: bool = False,
     only_anatomies: list | None = None,
 ) -> None:
+    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
     from cathsim_dmc.evaluation.rollouts import evaluate_policy
-    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.suite.gym import CathSimEnv
     from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
@@ -379,7 +379,7 @@ def _failures_near_target(scores: Path, within_m: float = 0.0085) -> tuple:
 def ship(root: Path, task: str) -> Path:
     """Export the navigator seed that scores best on the tuning pool (never the held-out one)
     as the shipped `policy=pretrained` for `task`, with its model card."""
-    from cathsim_dmc.learning.pretrained import export_actor
+    from cathsim_dmc.agents.pretrained import export_actor
 
     scores = root / "scores" / task
     candidates = {}
@@ -439,7 +439,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
 {task.upper()} of aortic arches it has never seen (docs/training.md#unseen-anatomy).
 
     cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
-    python -c "from cathsim_dmc.learning.pretrained import load_pretrained; policy = load_pretrained('{task}')"
+    python -c "from cathsim_dmc.agents.pretrained import load_pretrained; policy = load_pretrained('{task}')"
 
 {preset}
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.

@@ -241,7 +241,7 @@ def test_the_obs_choices_on_the_command_line_are_the_python_apis_presets():
 
 
 def _corrupt_manifest_collect(tmp_path):
-    from cathsim_dmc.learning.collect import collect
+    from cathsim_dmc.agents.collect import collect
 
     _write(tmp_path / "data" / "manifest.json", "{not json")
     collect(tmp_path / "data", "bca", "type1", "forward", episodes=1, episodes_per_shard=1, seed=0)
@@ -509,7 +509,7 @@ def test_api(call, error, expected, tmp_path):
 
 def test_continuing_a_dataset_records_a_truncated_shard_again(tmp_path):
     # A collection killed while writing a shard used to make the next run fail with BadZipFile.
-    from cathsim_dmc.learning.collect import SHARD_FORMAT, collect
+    from cathsim_dmc.agents.collect import SHARD_FORMAT, collect
 
     settings = dict(
         task="bca",

@@ -77,7 +77,7 @@ def test_distillation_regresses_z():
 
 
 def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
-    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
 
     net = BCNetwork()
     with torch.no_grad():
@@ -94,7 +94,7 @@ def test_checkpoint_acts_with_the_clipped_mean(tmp_path):
     # The scripted policies' module loads no checkpoint: a path there says where to go.
     from cathsim_dmc.control import policies
 
-    with pytest.raises(ValueError, match="cathsim_dmc.learning.agents.make_policy"):
+    with pytest.raises(ValueError, match="cathsim_dmc.agents.trained.make_policy"):
         policies.make_policy(str(tmp_path / "run"))
     assert isinstance(make_policy("forward"), policies.ForwardPolicy)
 
@@ -116,7 +116,7 @@ def test_stacked_frames_are_the_images_before_in_the_same_episode():
 
 
 def test_frame_stacking_student_keeps_its_buffer_per_episode(tmp_path):
-    from cathsim_dmc.learning.agents import make_policy
+    from cathsim_dmc.agents.trained import make_policy
 
     class Episode:  # what CheckpointPolicy reads of an environment: the step count
         def __init__(self):
@@ -148,7 +148,7 @@ def _bc(args, cwd):
 
 
 def test_cli_trains_then_evaluates_and_cathsim_eval_loads_it(tmp_path):
-    from cathsim_dmc.learning.collect import collect
+    from cathsim_dmc.agents.collect import collect
 
     collect(
         tmp_path / "data",

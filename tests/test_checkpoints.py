@@ -235,7 +235,7 @@ def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
 def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(tmp_path):
     """A policy.json written before insertion_limit_margin_m was removed: the agent, trained
     with the limit on, would be scored on another task; left at None (off) it loads."""
-    from cathsim_dmc.learning.agents import make_policy
+    from cathsim_dmc.agents.trained import make_policy
 
     env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 3})
     algo, _ = _configs()

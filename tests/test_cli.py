@@ -137,8 +137,8 @@ def _compose(config_name, overrides=()):
 
 
 def test_one_function_turns_every_tools_config_into_environment_arguments():
+    from cathsim_dmc.agents.trained import CheckpointPolicy
     from cathsim_dmc.app.cli._common import env_kwargs
-    from cathsim_dmc.learning.agents import CheckpointPolicy
 
     train = _compose(
         "train", ["obs=enn", "obs.style=fluoro", "task.max_steps=7", "experimental.extra_observations=[wire_slack]"]

@@ -92,7 +92,7 @@ def _force(args, cwd):
 
 
 def test_cli_reports_mse_per_size(tmp_path):
-    from cathsim_dmc.learning.collect import collect
+    from cathsim_dmc.agents.collect import collect
 
     collect(
         tmp_path / "data",

@@ -230,7 +230,7 @@ def test_each_periodic_evaluation_replays_the_same_starts_and_best_json_keeps_th
 
 
 def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evaluator(tmp_path):
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
 
     run = tmp_path / "run"
     args = [
@@ -304,7 +304,7 @@ def test_normaliser_statistics_are_saved_with_checkpoints_and_used_by_the_evalua
 
 def test_demonstrations_from_a_collected_dataset_match_the_live_expert(env, tmp_path):
     """Rewards recomputed from a cathsim-collect dataset's tip positions equal the live ones."""
-    from cathsim_dmc.learning.collect import collect
+    from cathsim_dmc.agents.collect import collect
     from cathsim_dmc.learning.rl.demos import dataset_transitions, expert_transitions
 
     collect(tmp_path / "data", "bca", "type1", "expert", episodes=2, episodes_per_shard=1, seed=7, show_progress=False)
@@ -426,7 +426,7 @@ def test_averaged_actor_trails_the_trained_one_and_is_what_best_zip_holds(env, t
     torch.testing.assert_close(saved_flat, averaged)
     # A periodic checkpoint holds the trained actor and the average beside it; cathsim-eval
     # plays the average, the policy its periodic evaluation scored.
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.learning.rl.checkpoints import save_checkpoint, write_policy_file
 
     write_policy_file(tmp_path, "internal", "bca", "type1")
@@ -443,7 +443,7 @@ def test_a_tie_at_the_best_success_rate_is_broken_on_more_selection_episodes(env
     import torch
     from stable_baselines3 import SAC
 
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.learning.rl.callbacks import break_best_tie
     from cathsim_dmc.learning.rl.checkpoints import (
         append_evaluation,

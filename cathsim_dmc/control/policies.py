@@ -2,7 +2,7 @@
 
 `env` is a `cathsim_dmc.suite.gym.CathSimEnv`; built-in policies may use it (the expert reads
 privileged state through it). Trained agents (checkpoints) are policies of the same
-shape, loaded by `cathsim_dmc.learning.agents`; this module imports neither SB3 nor torch.
+shape, loaded by `cathsim_dmc.agents.trained`; this module imports neither SB3 nor torch.
 """
 
 from __future__ import annotations
@@ -111,12 +111,12 @@ BUILTIN_POLICIES = {
 
 def make_policy(name: str, seed: int = 0):
     """A built-in policy by name (`BUILTIN_POLICIES`); a trained agent is loaded by
-    `cathsim_dmc.learning.agents.make_policy`, which also takes these names."""
+    `cathsim_dmc.agents.trained.make_policy`, which also takes these names."""
     if name in BUILTIN_POLICIES:
         return BUILTIN_POLICIES[name](seed=seed)
     if Path(name).exists():
         raise ValueError(
-            f"policy={name!r} is a checkpoint path: cathsim_dmc.learning.agents.make_policy loads trained agents "
+            f"policy={name!r} is a checkpoint path: cathsim_dmc.agents.trained.make_policy loads trained agents "
             f"(cathsim_dmc.control.policies holds the built-in ones, {sorted(BUILTIN_POLICIES)})"
         )
     raise ValueError(f"policy={name!r} is not a built-in policy {sorted(BUILTIN_POLICIES)}")

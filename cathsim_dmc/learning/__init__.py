@@ -1,2 +1,2 @@
-"""Learning: networks and datasets shared by rl/ and supervised/, with the agents, dataset
-collection and the shipped navigators on top of them."""
+"""Learning: reinforcement learning (rl/) and supervised learning (supervised/), on the
+networks and datasets they share (networks.py, datasets.py)."""

@@ -240,8 +240,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
     from omegaconf import OmegaConf
 
     from cathsim_dmc import tasks
+    from cathsim_dmc.agents.trained import CheckpointPolicy
     from cathsim_dmc.app.train_schema import TaskConfig
-    from cathsim_dmc.learning.agents import CheckpointPolicy
 
     task = cfg.task
     kwargs = dict(

@@ -38,9 +38,9 @@ def run(cfg) -> dict:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
+    from cathsim_dmc.agents.trained import CheckpointPolicy
     from cathsim_dmc.app.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, evaluate_policy
-    from cathsim_dmc.learning.agents import CheckpointPolicy
     from cathsim_dmc.learning.datasets import has_keys, load_arrays, stack_frames
     from cathsim_dmc.learning.supervised.bc import (
         PRESET_FOR_IMAGE,

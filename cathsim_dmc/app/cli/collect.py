@@ -5,7 +5,7 @@
     cathsim-collect out=outputs/collect/bca-type1/<run> episodes=400       # resume or grow
 
 Writes a dataset folder (manifest.json + shard_<n>.npz; layout in
-cathsim_dmc/learning/collect.py) that cathsim-bc and cathsim-force read.
+cathsim_dmc/agents/collect.py) that cathsim-bc and cathsim-force read.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ log = logging.getLogger("cathsim-collect")
 def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
+    from cathsim_dmc.agents.collect import MANIFEST, collect, read_manifest
     from cathsim_dmc.app.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.core.run_files import Interrupted, lock_folder
-    from cathsim_dmc.learning.collect import MANIFEST, collect, read_manifest
 
     kwargs = env_kwargs(cfg)
     # The dataset always records every modality (supervised/collect.py); the obs group gives the

@@ -16,10 +16,10 @@ from pathlib import Path
 def evaluate(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
+    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
     from cathsim_dmc.app.cli._common import env_kwargs, explicit_override
     from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, check_report_options, evaluate_policy
-    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
     from cathsim_dmc.suite.gym import CathSimEnv
 
     check_report_options(cfg.episodes, cfg.video_format, cfg.video_size)

@@ -24,12 +24,12 @@ def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.app.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.app.tool_schemas import validate
     from cathsim_dmc.app.train_schema import upgrade_saved_config
     from cathsim_dmc.core.run_files import Interrupted, lock_folder
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, evaluate_policy
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
     from cathsim_dmc.learning.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, FINAL_MODEL, best_record
     from cathsim_dmc.learning.rl.train import make_vec_env, train
     from cathsim_dmc.suite.gym import CathSimEnv

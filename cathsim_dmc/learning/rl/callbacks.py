@@ -324,8 +324,8 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     """
     import hashlib
 
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.evaluation.rollouts import run_episodes
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
 
     run_dir = Path(run_dir)
     best = best_record(run_dir)

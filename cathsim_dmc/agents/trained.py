@@ -160,7 +160,7 @@ def trained_env_options(model_path, env_options: dict | None) -> dict:
     return options
 
 
-# -- the shipped navigators (cathsim_dmc.learning.pretrained writes them) ----------------------
+# -- the shipped navigators (cathsim_dmc.agents.pretrained writes them) ----------------------
 PRETRAINED = "pretrained"  # the policy name the tools accept (policy=pretrained)
 POLICY_FOLDER = "policies"
 
@@ -237,7 +237,7 @@ def load_pretrained(target: str, folder: Path | None = None):
 
 def make_policy(name: str, seed: int = 0, task: str | None = None):
     """A built-in policy by name (`cathsim_dmc.control.policies.BUILTIN_POLICIES`), the shipped
-    navigator for `task` ("pretrained", `cathsim_dmc.learning.pretrained`), or a trained agent by
+    navigator for `task` ("pretrained", `cathsim_dmc.agents.pretrained`), or a trained agent by
     the path of its checkpoint or run folder."""
     if name in BUILTIN_POLICIES:
         return make_builtin_policy(name, seed=seed)

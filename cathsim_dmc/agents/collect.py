@@ -127,7 +127,7 @@ def enn_feature_fn(model, observation_keys):
 def collection_policy(name: str, seed: int, task: str | None = None):
     """(policy, feature_fn or None, label, image options, env options) for a built-in name or
     a checkpoint; a checkpoint's image and env options are the ones it was trained with."""
-    from cathsim_dmc.learning.agents import CheckpointPolicy, make_policy
+    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
     from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
     policy = make_policy(name, seed=seed, task=task)

@@ -1,6 +1,6 @@
 """Pretrained navigators shipped with the package: the actor's weights only, with a model card.
 
-    from cathsim_dmc.learning.pretrained import load_pretrained
+    from cathsim_dmc.agents.pretrained import load_pretrained
     policy = load_pretrained("lcca")          # a CheckpointPolicy: action = policy(observation, env)
 
     cathsim-eval policy=pretrained task=lcca aorta=type3       # any shipped name or asset folder
@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from cathsim_dmc.learning.agents import (  # noqa: F401
+from cathsim_dmc.agents.trained import (  # noqa: F401
     POLICY_FOLDER,
     PRETRAINED,
     PretrainedActor,
@@ -34,7 +34,7 @@ def export_actor(checkpoint, target: str, card: str, folder: Path | None = None,
     `card` (markdown) and `trained` (how it was trained) in its metadata. Returns the .pt."""
     import torch
 
-    from cathsim_dmc.learning.agents import load_checkpoint_policy
+    from cathsim_dmc.agents.trained import load_checkpoint_policy
 
     policy = load_checkpoint_policy(checkpoint)
     if policy.normalizer is not None:

@@ -1,0 +1,2 @@
+"""Trained agents as policies: checkpoints and the shipped navigators, and the datasets
+recorded from any policy."""
