@@ -52,9 +52,10 @@ def test_the_check_finds_the_word_and_spares_the_teleoperation(tmp_path):
     (tmp_path / "docs" / "page.md").write_text("Measured 2026-11-26.\n## Session 17: results\n")
     (tmp_path / "conf").mkdir()
     (tmp_path / "conf" / "train.yaml").write_text("steps: 8000  # as in earlier sessions\n")
-    (tmp_path / "cathsim_dmc" / "cli").mkdir(parents=True)
-    (tmp_path / "cathsim_dmc" / "cli" / "teleop.py").write_text("session = TeleopSession(env)\n")
-    (tmp_path / "cathsim_dmc" / "gym.py").write_text("class TeleopSession: pass  # a class name is fine\n")
+    (tmp_path / "cathsim_dmc" / "app" / "cli").mkdir(parents=True)
+    (tmp_path / "cathsim_dmc" / "app" / "cli" / "teleop.py").write_text("session = TeleopSession(env)\n")
+    (tmp_path / "cathsim_dmc" / "suite").mkdir()
+    (tmp_path / "cathsim_dmc" / "suite" / "gym.py").write_text("class TeleopSession: pass  # a class name is fine\n")
     (tmp_path / "docs" / "figure.png").write_bytes(b"session")  # not text: not read
     mentions = work_sense_mentions(tmp_path)
     assert sorted(mentions) == [
