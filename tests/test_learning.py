@@ -663,3 +663,31 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
     assert np.all(buffer.demos.actions[:recorded, 0, 1] == 0.0)
     assert np.all(buffer.labels.actions[:labelled, 0, 1] == 0.0)
     assert buffer.demos.actions[:recorded, 0, 0].max() > 0  # it does insert
+
+
+def test_sb3_logs_the_success_rate_from_the_last_steps_info_and_episode_stats_the_force():
+    """Through the training's vector env (DummyVecEnv of Monitor), every episode's last
+    info carries is_success, from which SB3 logs rollout/success_rate; EpisodeStats adds
+    the mean contact force."""
+    from stable_baselines3.common.logger import KVWriter, Logger
+
+    from cathsim_dmc.learning.rl.callbacks import EpisodeStats
+    from cathsim_dmc.learning.rl.train import build_sac, make_vec_env
+
+    class Dumps(KVWriter):
+        def __init__(self):
+            self.dumps = []
+
+        def write(self, key_values, key_excluded, step=0):
+            self.dumps.append(dict(key_values))
+
+    env = make_vec_env("bca", "type1", "internal", 0, 1, dict(max_steps=3))
+    model = build_sac(env, dict(learning_starts=100, batch_size=16, buffer_size=100, net_arch=[16]), 0, "cpu", None)
+    dumps = Dumps()
+    model.set_logger(Logger(None, [dumps]))
+    model.learn(total_timesteps=9, callback=EpisodeStats(), log_interval=1)
+    env.close()
+    assert list(model.ep_success_buffer) == [False, False, False]  # one per episode, from info["is_success"]
+    logged = [d for d in dumps.dumps if "rollout/success_rate" in d]
+    assert len(logged) == 3 and all(d["rollout/success_rate"] == 0.0 for d in logged)
+    assert all(d["rollout/mean_contact_force_n"] >= 0.0 and "time/env_steps_per_s" in d for d in logged)
