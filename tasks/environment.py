@@ -35,15 +35,17 @@ class NavigationEnvironment(composer.Environment):
         kwargs.setdefault("recompile_mjcf_every_episode", False)
         self._cache_models = bool(cache_models)
         super().__init__(task, **kwargs)
-        if not self._recompile_mjcf_every_episode:
+        if not kwargs["recompile_mjcf_every_episode"]:
+            # No public switch: composer would compile again at the first reset (tests/test_upstream_internals.py).
             self._mjcf_never_compiled = False
 
+    # composer builds its Physics here only, with no public way to choose the class or the compiled model.
     def _recompile_physics(self):
-        aorta = self._task.aorta
+        aorta = self.task.aorta
         physics = getattr(self, "_physics", None)
         if physics:
             physics.free()
-        root = self._task.root_entity.mjcf_model
+        root = self.task.root_entity.mjcf_model
         if aorta.hulls_in_mjcf:
             self._physics = cs_physics.ConstraintSensingPhysics.from_mjcf_model(root)
             self._physics.legacy_step = self._legacy_step

@@ -234,6 +234,7 @@ class Navigate(composer.Task):
         )
 
         self._step_count = 0
+        self._steps_at_target_depth = 0
         self._success = False
         self._diverged = False
         self._escaped = False
@@ -334,6 +335,14 @@ class Navigate(composer.Task):
         measurements.set_start(physics, insertion)
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
         self._roadmap.start(random_state)
+        self._steps_at_target_depth = 0
+        if self._observes_roadmap():
+            # The tip is first located on the whole roadmap (this fix starts the depth clock),
+            # then tracked from there: the `roadmap` features of the reset are the second fix,
+            # each with its own noise (as the tracker's readings at a reset always were).
+            self._track_roadmap(physics)
+            if self._task_observables["roadmap"].enabled:
+                self._roadmap.measure(physics)
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])
@@ -354,6 +363,19 @@ class Navigate(composer.Task):
             self._success = self.target_distance_m(physics) <= self._delta_m
             self._previous_reward_distance_m = self._reward_distance_m
             self._reward_distance_m = self.reward_distance_m(physics)
+        if self._observes_roadmap():
+            self._track_roadmap(physics)
+
+    def _observes_roadmap(self) -> bool:
+        observables = self._task_observables
+        return observables["roadmap"].enabled or observables["target_depth_time"].enabled
+
+    def _track_roadmap(self, physics) -> None:
+        """One roadmap measurement of the step's end state; counts a step at the target's
+        depth (the tracked tip within one full-speed insertion step of it along the roadmap)."""
+        self._roadmap.measure(physics)
+        at_depth = self._roadmap.remaining_m < self._progress_step_m()
+        self._steps_at_target_depth = self._steps_at_target_depth + 1 if at_depth else 0
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -475,6 +497,12 @@ class Navigate(composer.Task):
     @property
     def step_count(self) -> int:
         return self._step_count
+
+    @property
+    def steps_at_target_depth(self) -> int:
+        """How many control steps in a row the tracked tip has been at the target's depth
+        (`target_depth_time`'s count; counted while `roadmap` or `target_depth_time` is observed)."""
+        return self._steps_at_target_depth
 
     def step_info(self, physics) -> StepInfo:
         contacts = self.contact_forces(physics)

@@ -12,7 +12,7 @@ from dm_control.composer.observation import observable
 
 from cathsim_dmc.app.train_schema import EXTRA_OBSERVATIONS  # noqa: F401  (the names' one home; public here too)
 from cathsim_dmc.sim.render import ObservationSettings, TopView, image_noise
-from cathsim_dmc.tasks.roadmap import RoadmapTracker
+from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS, RoadmapTracker
 
 
 def check_extra_observations(extra_observations) -> tuple:
@@ -61,9 +61,13 @@ def task_observables(
                 [robot.pose_features(physics), robot.rate_features(physics), catheter_features()]
             )
         ),
-        # The registered roadmap around the tracked tip, in the tip's frame (tasks/roadmap.py).
+        # The registered roadmap around the tracked tip, in the tip's frame (tasks/roadmap.py),
+        # as the task measured it at the end of the step.
         "roadmap": observable.Generic(roadmap.features),
-        "target_depth_time": observable.Generic(roadmap.depth_time),
+        # The steps the tracked tip has stayed at the target's depth (the task's count), over DEPTH_CLOCK_STEPS.
+        "target_depth_time": observable.Generic(
+            lambda physics: np.array([min(task.steps_at_target_depth, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
+        ),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         "guidewire_mask": observable.Generic(top_view.mask),
         "tip_position": observable.MJCFFeature("xpos", guidewire.tip_site),

@@ -28,11 +28,15 @@ completing the right-handed frame. Lengths are in centimetres. In order:
 The nearest point is tracked from step to step within a window along the line (as a
 navigation system would), so it cannot jump to a parallel stretch of vessel.
 
+The tracker measures once per control step, when the task tells it to (`Navigate`'s
+`after_step`; at a reset, `start`): the observables read that step's measurement.
+
 `target_depth_time` (preset `roadmap_timed`) is a clock the same system can
 keep: how many control steps the tracked tip has stayed at the target's depth (within one
 full-speed insertion step of it along the roadmap), over `DEPTH_CLOCK_STEPS`, at most 1.
-With it, the scripted expert's end game (strokes past the target and back, timed by its
-own count of the same steps) becomes a function of what the policy observes.
+The task keeps the count (`Navigate.steps_at_target_depth`). With it, the scripted
+expert's end game (strokes past the target and back, timed by its own count of the same
+steps) becomes a function of what the policy observes.
 """
 
 from __future__ import annotations
@@ -51,7 +55,8 @@ DEPTH_CLOCK_STEPS = 100
 
 
 class RoadmapTracker:
-    """The roadmap features of one task (`features(physics)`), tracked over an episode."""
+    """The roadmap features of one task, tracked over an episode: `start` at a reset,
+    `measure` once per control step, `features` the last measurement."""
 
     def __init__(self, task, tracking_noise_m: float = 0.0, registration_error_m: float = 0.0):
         points, radius = task.aorta.asset.centerlines[task.target_name]
@@ -62,42 +67,35 @@ class RoadmapTracker:
         self._random_state = np.random.RandomState(0)
         self._offset = np.zeros(3)
         self._s = None
-        self._time_s = None  # the physics time of the step the clock last counted
-        self._at_depth_steps = 0
+        self._features = np.zeros(ROADMAP_SIZE)  # before the first episode: a placeholder of the right shape
 
     def start(self, random_state) -> None:
-        """A new episode: a new registration offset; the nearest point is searched afresh."""
+        """A new episode: a new registration offset; the nearest point is searched afresh
+        by the next `measure`."""
         self._random_state = random_state
         self._offset = (
             random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0 else np.zeros(3)
         )
         self._s = None
-        self._time_s = None
-        self._at_depth_steps = 0
+
+    def measure(self, physics) -> None:
+        """A new tracking measurement of the current state (its own noise), kept as `features`."""
+        self._features = self._measure(physics)
+
+    def features(self, physics=None) -> np.ndarray:
+        """The last measurement's roadmap features (the `roadmap` observable)."""
+        return self._features.copy()
+
+    @property
+    def remaining_m(self) -> float:
+        """The last measurement's length along the roadmap from the nearest point to the target (m)."""
+        return self._line.length_m - self._s
 
     def _tracked(self, position) -> np.ndarray:
         if self.tracking_noise_m > 0:
             position = position + self._random_state.normal(0.0, self.tracking_noise_m, 3)
         # The roadmap is registered with an error: the tip as seen on it is off by the offset.
         return position - self._offset
-
-    def features(self, physics) -> np.ndarray:
-        """The roadmap features (a new tracking measurement at every call)."""
-        features = self._measure(physics)
-        time_s = physics.time()
-        if time_s != self._time_s:  # the first measurement of a step moves the clock
-            self._time_s = time_s
-            task = self._task
-            remaining_m = self._line.length_m - self._s  # as the expert measures it
-            at_depth = remaining_m < task.robot.max_insertion_speed_m_s * task.control_timestep
-            self._at_depth_steps = self._at_depth_steps + 1 if at_depth else 0
-        return features
-
-    def depth_time(self, physics) -> np.ndarray:
-        """`target_depth_time`: steps at the target's depth so far, over DEPTH_CLOCK_STEPS (at most 1)."""
-        if physics.time() != self._time_s:
-            self.features(physics)
-        return np.array([min(self._at_depth_steps, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
 
     def _measure(self, physics) -> np.ndarray:
         task, line = self._task, self._line

@@ -95,7 +95,8 @@ def test_info_and_truncation():
     while not done:
         _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
         done = terminated or truncated
-    assert truncated and not terminated and info["step"] == 3
+        assert ("is_success" in info) == done  # the episode's outcome, at its last step only
+    assert truncated and not terminated and info["step"] == 3 and not info["is_success"]
     env.close()
 
 
@@ -194,7 +195,7 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
 
     # Success on the last allowed step: terminal, not a timeout.
     buffer, steps, info = _stored_episode(max_steps=reach)
-    assert steps == reach and info["step"] == reach and info["success"]
+    assert steps == reach and info["step"] == reach and info["success"] and info["is_success"]
     assert not info["TimeLimit.truncated"]
     samples = buffer._get_samples(np.arange(steps))
     assert samples.dones[:, 0].tolist() == [0.0] * (steps - 1) + [1.0]
@@ -207,7 +208,7 @@ def test_replay_buffer_bootstraps_time_limits_and_divergence_but_not_a_success()
     # as a timeout, so sampled as not done, with the last state as the next observation
     # (not the next episode's first).
     buffer, steps, info = _stored_episode(max_steps=reach - 1)
-    assert steps == reach - 1 and not info["success"] and info["TimeLimit.truncated"]
+    assert steps == reach - 1 and not info["success"] and info["TimeLimit.truncated"] and not info["is_success"]
     assert buffer.dones[steps - 1, 0] == 1.0 and buffer.timeouts[steps - 1, 0] == 1.0
     samples = buffer._get_samples(np.arange(steps))
     assert not samples.dones.any()

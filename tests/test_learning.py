@@ -663,3 +663,78 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
     assert np.all(buffer.demos.actions[:recorded, 0, 1] == 0.0)
     assert np.all(buffer.labels.actions[:labelled, 0, 1] == 0.0)
     assert buffer.demos.actions[:recorded, 0, 0].max() > 0  # it does insert
+
+
+def test_sb3_logs_the_success_rate_from_the_last_steps_info_and_episode_stats_the_force():
+    """Through the training's vector env (DummyVecEnv of Monitor), every episode's last
+    info carries is_success, from which SB3 logs rollout/success_rate; EpisodeStats adds
+    the mean contact force."""
+    from stable_baselines3.common.logger import KVWriter, Logger
+
+    from cathsim_dmc.learning.rl.callbacks import EpisodeStats
+    from cathsim_dmc.learning.rl.train import build_sac, make_vec_env
+
+    class Dumps(KVWriter):
+        def __init__(self):
+            self.dumps = []
+
+        def write(self, key_values, key_excluded, step=0):
+            self.dumps.append(dict(key_values))
+
+    env = make_vec_env("bca", "type1", "internal", 0, 1, dict(max_steps=3))
+    model = build_sac(env, dict(learning_starts=100, batch_size=16, buffer_size=100, net_arch=[16]), 0, "cpu", None)
+    dumps = Dumps()
+    model.set_logger(Logger(None, [dumps]))
+    model.learn(total_timesteps=9, callback=EpisodeStats(), log_interval=1)
+    env.close()
+    assert list(model.ep_success_buffer) == [False, False, False]  # one per episode, from info["is_success"]
+    logged = [d for d in dumps.dumps if "rollout/success_rate" in d]
+    assert len(logged) == 3 and all(d["rollout/success_rate"] == 0.0 for d in logged)
+    assert all(d["rollout/mean_contact_force_n"] >= 0.0 and "time/env_steps_per_s" in d for d in logged)
+
+
+@pytest.mark.parametrize("ent_coef", ["auto_0.05", 0.1])
+def test_sacfds_copy_of_sac_train_makes_sacs_updates_bit_for_bit_without_the_cloning_term(env, ent_coef):
+    """SACfD's loop with the cloning term (a copy of SB3's SAC.train, which has no hook into
+    the actor's loss) on no demonstration states: the same updates as SAC.train itself from
+    the same weights, batches and seed. Fails when SB3's SAC.train changes."""
+    import torch
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from cathsim_dmc.learning.rl.train import build_sac
+
+    algo = dict(buffer_size=300, learning_starts=0, batch_size=32, target_update_interval=2, net_arch=[32, 32])
+    algo["ent_coef"] = ent_coef
+    models = [build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None) for _ in range(2)]
+    space, rng = env.observation_space, np.random.default_rng(0)
+    for _ in range(200):
+        obs, next_obs = ({k: rng.normal(size=(1,) + s.shape).astype(s.dtype) for k, s in space.items()} for _ in "ab")
+        action, reward = rng.uniform(-1, 1, (1, 2)).astype(np.float32), rng.normal(size=1).astype(np.float32)
+        done = np.array([rng.random() < 0.1])
+        for model in models:
+            model.replay_buffer.add(obs, next_obs, action, reward, done, [{"TimeLimit.truncated": False}])
+    for model, update in zip(models, (lambda m: SAC.train(m, 6, 32), lambda m: m._train_with_cloning(6, 32, 0))):
+        model._setup_learn(1)
+        np.random.seed(1)  # the replay buffer's draws
+        torch.manual_seed(1)  # the actor's sampled actions
+        update(model)
+
+    def state(model):
+        tensors = {**model.actor.state_dict(), **{f"critic.{k}": v for k, v in model.critic.state_dict().items()}}
+        tensors.update({f"target.{k}": v for k, v in model.critic_target.state_dict().items()})
+        optimizers = [model.actor.optimizer, model.critic.optimizer]
+        if model.ent_coef_optimizer is not None:
+            tensors["log_ent_coef"] = model.log_ent_coef
+            optimizers.append(model.ent_coef_optimizer)
+        for i, optimizer in enumerate(optimizers):
+            for j, moments in enumerate(optimizer.state_dict()["state"].values()):
+                tensors.update({f"optimizer{i}.{j}.{k}": v for k, v in moments.items() if torch.is_tensor(v)})
+        return tensors
+
+    sac, copy = state(models[0]), state(models[1])
+    assert sac.keys() == copy.keys() and len(sac) > 20
+    assert [k for k in sac if not torch.equal(sac[k], copy[k])] == []
+    assert models[0]._n_updates == models[1]._n_updates == 6
+    start = build_sac(DummyVecEnv([lambda: env]), algo, 0, "cpu", None).actor.state_dict()
+    assert not all(torch.equal(start[k], models[0].actor.state_dict()[k]) for k in start)  # the updates moved it

@@ -140,6 +140,9 @@ def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
         if expert._retreat_to is not None:
             break
         clocks.append((round(float(obs["target_depth_time"][0]) * DEPTH_CLOCK_STEPS), expert._at_depth))
+        # The count is the task's; reading the observable again neither moves nor changes it.
+        again = env.task.observables["target_depth_time"](env.physics)
+        assert clocks[-1][0] == env.task.steps_at_target_depth and np.float32(again[0]) == obs["target_depth_time"][0]
         obs, _, terminated, truncated, _ = env.step(action)
         plain_obs, *_ = plain.step(action)
         if terminated or truncated:
@@ -148,3 +151,20 @@ def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
     assert max(clock for clock, _ in clocks) > expert.settle_steps  # the end game was played
     env.close()
     plain.close()
+
+
+def test_a_step_has_one_roadmap_measurement_however_often_it_is_read():
+    """The task measures the roadmap at the end of each step (its noise drawn then); the
+    observable reads that measurement, so a second read returns the step's observation."""
+    env = CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=0.001)
+    try:
+        obs, _ = env.reset(seed=0)
+        roadmap = env.task.observables["roadmap"]
+        for _ in range(3):
+            state = env.dm_env.random_state.get_state()[1].copy()
+            for _ in range(2):
+                np.testing.assert_array_equal(np.float32(roadmap(env.physics)), obs["roadmap"])
+            assert np.array_equal(env.dm_env.random_state.get_state()[1], state)  # no noise drawn by a read
+            obs, *_ = env.step(np.array([1.0, 0.0], np.float32))
+    finally:
+        env.close()

@@ -115,14 +115,11 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
     algo = info.get("algo", "sac")
     try:
         if algo == "sac":
-            from stable_baselines3 import SAC
+            from cathsim_dmc.learning.rl.sacfd import SACfD
 
-            model = SAC.load(model_path, device="cpu")
-            average = getattr(model, "_actor_average", None)
-            if (
-                average is not None
-            ):  # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
-                model.actor.load_state_dict(average)
+            model = SACfD.load(model_path, device="cpu")
+            if model.actor_average is not None:  # the recipe's deterministic policy, as evaluated in training
+                model.actor.load_state_dict(model.actor_average)
         elif algo == "bc":
             from cathsim_dmc.learning.supervised.bc import load_bc_policy
 

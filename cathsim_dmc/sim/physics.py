@@ -284,9 +284,11 @@ class ConstraintSensingPhysics(mjcf.Physics):
         if not self.legacy_step or self._binding_writes != self._writes_before_last_step:
             return False
         forward_from_velocity_stage(self)
+        # mjcf.Physics clears it only in forward(), the full mj_forward this saves (tests/test_upstream_internals.py).
         self._dirty = False
         return True
 
+    # dm_control's legacy step is this private method (mj_step2, then mj_step1): the one place between the halves.
     def _step_with_up_to_date_position_velocity(self, nstep: int = 1) -> None:
         callback = self.after_constraint_solve
         if callback is None or self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:

@@ -6,7 +6,8 @@ means the 300-step limit, a diverged simulation (``info["diverged"]``) or a wire
 left the anatomy (``info["escaped"]``). Actions are [insertion, rotation] in [-1, 1]
 (values outside are clipped), with ``catheter=`` a third entry for the catheter's carriage
 (``info["catheter_offset_m"]``: its tip behind the wire's); a wrong shape, NaN or inf
-raises ValueError.
+raises ValueError. The last step of an episode also has ``info["is_success"]`` (the
+``success`` that ended it), from which stable-baselines3 logs ``rollout/success_rate``.
 """
 
 from __future__ import annotations
@@ -89,7 +90,10 @@ class CathSimEnv(gymnasium.Env):
         terminated = bool(timestep.last() and timestep.discount == 0.0)
         truncated = bool(timestep.last() and not terminated)
         self._needs_reset = terminated or truncated
-        return self._observation(timestep), float(timestep.reward), terminated, truncated, self._info()
+        info = self._info()
+        if self._needs_reset:  # the Gymnasium/SB3 key of an episode's outcome (SB3 logs rollout/success_rate from it)
+            info["is_success"] = info["success"]
+        return self._observation(timestep), float(timestep.reward), terminated, truncated, info
 
     def render(self):
         if self.render_mode != "rgb_array":

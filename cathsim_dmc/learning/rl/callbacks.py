@@ -47,9 +47,12 @@ def deterministic_policy(model):
 
 
 class EpisodeStats(BaseCallback):
-    """Logs success rate, mean contact force (N) and steps/s over finished episodes.
+    """Logs the mean contact force (N) over finished episodes and steps/s.
 
-    :param window: the number of latest episodes the success rate and force are averaged over
+    SB3 logs the success rate itself (`rollout/success_rate`, from the last step's
+    ``info["is_success"]``, which `CathSimEnv` sets).
+
+    :param window: the number of latest episodes the force is averaged over
     """
 
     def __init__(self, window: int = 20):
@@ -57,7 +60,7 @@ class EpisodeStats(BaseCallback):
         self.window = window
         self._force_sum = None
         self._steps = None
-        self._successes, self._forces = [], []
+        self._forces = []
         self._t0 = time.perf_counter()
         self._n0 = 0
 
@@ -73,11 +76,9 @@ class EpisodeStats(BaseCallback):
             self._force_sum[i] += info.get("mean_contact_force_n", 0.0)
             self._steps[i] += 1
             if done:
-                self._successes.append(float(info.get("success", False)))
                 self._forces.append(self._force_sum[i] / max(self._steps[i], 1))
                 self._force_sum[i] = self._steps[i] = 0
-                self._successes, self._forces = self._successes[-self.window :], self._forces[-self.window :]
-                self.logger.record("rollout/success_rate", float(np.mean(self._successes)))
+                self._forces = self._forces[-self.window :]
                 self.logger.record("rollout/mean_contact_force_n", float(np.mean(self._forces)))
         elapsed = time.perf_counter() - self._t0
         if elapsed > 0:

@@ -162,6 +162,12 @@ class SACfD(SAC):
                 else:
                     self._actor_average[key].copy_(value)
 
+    @property
+    def actor_average(self) -> dict | None:
+        """The actor's averaged weights (name -> tensor, like `actor.state_dict()`), or None
+        (no average: `actor_average_tau` 0, or no update yet)."""
+        return self._actor_average
+
     @contextmanager
     def averaged_actor(self):
         """Within the block the actor holds its averaged weights (unchanged without an average)."""
@@ -180,6 +186,13 @@ class SACfD(SAC):
         n_demo = buffer.demo_batch_size(batch_size) if isinstance(buffer, DemoReplayBuffer) else 0
         if self.bc_weight <= 0 or n_demo == 0:
             return super().train(gradient_steps, batch_size)
+        self._train_with_cloning(gradient_steps, batch_size, n_demo)
+
+    def _train_with_cloning(self, gradient_steps: int, batch_size: int, n_demo: int) -> None:
+        """SB3 2.9's `SAC.train` with the cloning term on `n_demo` states in the actor's loss
+        (0: none, and then the same updates as `SAC.train`'s, bit for bit)."""
+        # A copy, as SAC.train has no hook into the actor's loss; tests/test_learning.py fails when they part.
+        buffer = self.replay_buffer
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.ent_coef_optimizer is not None:
@@ -203,31 +216,29 @@ class SACfD(SAC):
             critic_loss = _critic_step(self, data, ent_coef)
 
             q_pi = torch.cat(self.critic(data.observations, actions_pi), dim=1).min(dim=1, keepdim=True)[0]
-            actor_loss = (ent_coef * log_prob - q_pi).mean()
-            if buffer.label_count():  # the cloning term also covers the expert labels' states
-                demo_obs, demo_actions = buffer.cloning_batch(n_demo, env=self._vec_normalize_env)
-            else:
-                demo_obs, demo_actions = {k: v[demo] for k, v in data.observations.items()}, data.actions[demo]
-            mean, _, _ = self.actor.get_action_dist_params(demo_obs)
-            deterministic = torch.tanh(mean)
-            bc_loss = ((deterministic - demo_actions) ** 2).sum(dim=1).mean()
-            # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
-            # same whatever the reward's scale.
-            loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
+            actor_loss = loss = (ent_coef * log_prob - q_pi).mean()
+            if n_demo:
+                if buffer.label_count():  # the cloning term also covers the expert labels' states
+                    demo_obs, demo_actions = buffer.cloning_batch(n_demo, env=self._vec_normalize_env)
+                else:
+                    demo_obs, demo_actions = {k: v[demo] for k, v in data.observations.items()}, data.actions[demo]
+                mean, _, _ = self.actor.get_action_dist_params(demo_obs)
+                deterministic = torch.tanh(mean)
+                bc_loss = ((deterministic - demo_actions) ** 2).sum(dim=1).mean()
+                # Scaled by the critic's magnitude (as TD3+BC does), so that bc_weight means the
+                # same whatever the reward's scale.
+                loss = actor_loss + self.bc_weight * q_pi.abs().mean().detach() * bc_loss
+                stats["bc_loss"].append(float(bc_loss.item()))
             self.actor.optimizer.zero_grad()
             loss.backward()
             self.actor.optimizer.step()
             if step % self.target_update_interval == 0:
                 polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
                 polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
-            for key, value in (
-                ("critic_loss", critic_loss),
-                ("actor_loss", actor_loss),
-                ("bc_loss", bc_loss),
-                ("ent_coef", ent_coef),
-            ):
+            for key, value in (("critic_loss", critic_loss), ("actor_loss", actor_loss), ("ent_coef", ent_coef)):
                 stats[key].append(float(value.item()))
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         for key, values in stats.items():
-            self.logger.record(f"train/{key}", float(np.mean(values)))
+            if values:
+                self.logger.record(f"train/{key}", float(np.mean(values)))
