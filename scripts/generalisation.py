@@ -129,7 +129,7 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     """name -> what make_policy takes, for every policy that exists (a navigator run once it
     has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
-    from cathsim_dmc.agents.pretrained import shipped_targets
+    from cathsim_dmc.agents.trained import shipped_targets
 
     if task in shipped_targets():
         found["pretrained"] = "pretrained"
@@ -439,7 +439,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
 {task.upper()} of aortic arches it has never seen (docs/training.md#unseen-anatomy).
 
     cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
-    python -c "from cathsim_dmc.agents.pretrained import load_pretrained; policy = load_pretrained('{task}')"
+    python -c "from cathsim_dmc.agents.trained import load_pretrained; policy = load_pretrained('{task}')"
 
 {preset}
 - **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cathsim_dmc.core.registry import CUSTOM_AORTA, TARGETS, all_tasks, aorta_choices
+from cathsim_dmc.core import task_defaults
+from cathsim_dmc.core.registry import CUSTOM_AORTA, RANDOM_AORTA, TARGETS, all_tasks, aorta_choices
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
-from cathsim_dmc.sim.physics import DEFAULT_PHYSICS, physics_settings
+from cathsim_dmc.sim.physics import physics_settings
 from cathsim_dmc.tasks.environment import NavigationEnvironment
 from cathsim_dmc.tasks.navigate import Navigate, check_options
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS, observation_settings
-from cathsim_dmc.tasks.randomized import RANDOM_AORTA, RandomAnatomyEnvironment, random_anatomy_environment
+from cathsim_dmc.tasks.randomized import RandomAnatomyEnvironment, random_anatomy_environment
 
 OBSERVATIONS = tuple(OBSERVATION_PRESETS)
 # Straight shaft between the sheath's tip and the wire's shaped tip at the start, metres:
@@ -140,7 +141,7 @@ def build_task(
         solref=wire.contact_solref,
         solimp=wire.contact_solimp,
         hulls_in_mjcf=False,
-        wall=physics_settings(task_kwargs.get("physics") or DEFAULT_PHYSICS).wall,
+        wall=physics_settings(task_kwargs.get("physics") or task_defaults.PHYSICS).wall,
     )
     vessel = Aorta(asset=aorta, **{**wall, **(aorta_options or {})})
     return Navigate(vessel, wire, follower, target=task, observations=settings, **task_kwargs)

@@ -10,7 +10,7 @@ from dm_control import composer
 
 from cathsim_dmc.anatomy.containment import Containment
 from cathsim_dmc.anatomy.paths import CenterlineTree
-from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS, TaskConfig
+from cathsim_dmc.core import task_defaults
 from cathsim_dmc.core.checks import check_number
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterDrive, catheter_named
@@ -19,13 +19,12 @@ from cathsim_dmc.sim.render import ObservationSettings
 from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
-from cathsim_dmc.tasks.rewards import SUCCESS_REWARD, NavigationReward
+from cathsim_dmc.tasks.rewards import NavigationReward
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
-# The task's defaults are the training config's (cathsim_dmc.app.train_schema.TaskConfig), defined there once.
-MAX_STEPS = TaskConfig.max_steps  # the paper's episode limit
-SUCCESS_RADIUS_M = TaskConfig.delta_m  # the paper's delta
+# The task's defaults (success radius, rewards, time limit, start pose, physics) are
+# cathsim_dmc.core.task_defaults', which the command-line tools' schemas read too.
 # The largest success radius `check_options` accepts. Every shipped target lies 17.5-18.5 cm
 # (straight line) from the wire tip's start, and the supra-aortic branches leave the arch a
 # few centimetres apart: a sphere wider than 5 cm around a target reaches into the arch
@@ -34,14 +33,6 @@ MAX_SUCCESS_RADIUS_M = 0.05
 # The largest start insertion jitter: the shipped routes run 20-24 cm along the centerline to
 # targets 17.5-18.5 cm above the start, so a start up to 5 cm deeper is still far below the arch.
 MAX_START_INSERTION_JITTER_M = 0.05
-
-
-def check_removed_arguments(arguments) -> None:
-    """ValueError in one line for an argument of `arguments` (names) that was removed
-    (`cathsim_dmc.app.train_schema.REMOVED_TASK_ARGUMENTS`)."""
-    for name in arguments:
-        if name in REMOVED_TASK_ARGUMENTS:
-            raise ValueError(f"{name} was {REMOVED_TASK_ARGUMENTS[name]}; leave it out")
 
 
 def check_options(
@@ -60,14 +51,13 @@ def check_options(
 
     `Navigate` checks its own arguments with it; `build_task` and the command-line tools
     call it before building anything. A zero success radius would make MuJoCo fail on a
-    zero-size marker, and `max_steps=0` would end every episode after one step. A removed
-    argument (`check_removed_arguments`) fails here too; other names are left to `Navigate`.
+    zero-size marker, and `max_steps=0` would end every episode after one step. Other
+    names are left to `Navigate`.
     """
-    check_removed_arguments(others)
     if delta_m is not None and check_number("delta_m", delta_m, 0.0, inclusive=False) > MAX_SUCCESS_RADIUS_M:
         raise ValueError(
             f"delta_m={delta_m!r} m is larger than any meaningful success radius; choose one in "
-            f"(0, {MAX_SUCCESS_RADIUS_M}] m (the paper's: {SUCCESS_RADIUS_M})"
+            f"(0, {MAX_SUCCESS_RADIUS_M}] m (the paper's: {task_defaults.SUCCESS_RADIUS_M})"
         )
     if max_steps is not None:
         check_number("max_steps", max_steps, 1, whole=True)
@@ -104,9 +94,9 @@ class StartPose:
     """The robot's pose at the start of an episode: insertion drawn from [0,
     `insertion_jitter_m`] metres, rotation `rotation_rad` +- `rotation_jitter_rad`."""
 
-    insertion_jitter_m: float = TaskConfig.start_insertion_jitter_m
-    rotation_rad: float = TaskConfig.start_rotation_rad
-    rotation_jitter_rad: float = TaskConfig.start_rotation_jitter_rad
+    insertion_jitter_m: float = task_defaults.START_INSERTION_JITTER_M
+    rotation_rad: float = task_defaults.START_ROTATION_RAD
+    rotation_jitter_rad: float = task_defaults.START_ROTATION_JITTER_RAD
 
     def draw(self, random_state) -> tuple[float, float]:
         """(insertion in metres, rotation in radians) for one episode."""
@@ -127,7 +117,7 @@ class Navigate(composer.Task):
     terms are in `cathsim_dmc.tasks.rewards`): `reward="geodesic"` measures the distance
     along the vessel instead of the straight line; `progress_weight` adds that weight
     times the step's progress towards the target in units of one full-speed insertion
-    step (potential-style shaping). The defaults are `cathsim_dmc.app.train_schema.TaskConfig`'s.
+    step (potential-style shaping). The defaults are `cathsim_dmc.core.task_defaults`'.
 
     Physics: `physics="fast"` (the default: PGS capped at 10 iterations, dense Jacobian,
     noslip off, sleep on; about twice the speed of `accurate` in wall contact) or `"accurate"`
@@ -157,10 +147,10 @@ class Navigate(composer.Task):
         guidewire: Guidewire,
         robot: FollowerRobot,
         target: str = "bca",
-        delta_m: float = SUCCESS_RADIUS_M,
-        success_reward: float = SUCCESS_REWARD,
-        dense: bool = TaskConfig.dense,
-        max_steps: int = MAX_STEPS,
+        delta_m: float = task_defaults.SUCCESS_RADIUS_M,
+        success_reward: float = task_defaults.SUCCESS_REWARD,
+        dense: bool = task_defaults.DENSE_REWARD,
+        max_steps: int = task_defaults.MAX_STEPS,
         observations: ObservationSettings = OBSERVATION_PRESETS["internal"],
         control_timestep_s: float = CONTROL_TIMESTEP_S,
         start_insertion_jitter_m: float = StartPose.insertion_jitter_m,
@@ -170,14 +160,9 @@ class Navigate(composer.Task):
         reward: str = "euclidean",
         progress_weight: float = 0.0,
         extra_observations: tuple = (),
-        physics: str = cs_physics.DEFAULT_PHYSICS,
-        catheter: Catheter | str | None = TaskConfig.catheter,
-        **removed,
+        physics: str = task_defaults.PHYSICS,
+        catheter: Catheter | str | None = None,
     ):
-        # `removed`: arguments since removed, refused in one line rather than as unknown.
-        check_removed_arguments(removed)
-        if removed:
-            raise TypeError(f"Navigate() got an unexpected keyword argument {next(iter(removed))!r}")
         if target not in aorta.targets:
             raise ValueError(
                 f"target={target!r} is not a site of aorta {aorta.name!r}; choose one of {sorted(aorta.targets)}"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from dm_control.composer.observation import observable
 
-from cathsim_dmc.app.train_schema import EXTRA_OBSERVATIONS  # noqa: F401  (the names' one home; public here too)
+from cathsim_dmc.core.registry import EXTRA_OBSERVATIONS
 from cathsim_dmc.sim.render import ObservationSettings, TopView, image_noise
 from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS, RoadmapTracker
 

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from cathsim_dmc.core.registry import RANDOM_AORTA  # noqa: F401  (the name's one home; public here too)
+from cathsim_dmc.core.registry import RANDOM_AORTA
 
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
 DISTRIBUTION_KEYS = (

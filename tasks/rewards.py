@@ -20,9 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from cathsim_dmc.app.train_schema import TaskConfig
-
-SUCCESS_REWARD = TaskConfig.success_reward  # defined once, in the training config's schema
+from cathsim_dmc.core import task_defaults
 
 
 # -- the dense reward's distances, tip to target, in metres --------------------------------
@@ -69,8 +67,8 @@ class NavigationReward:
     and the progress shaping's weight (0: no shaping)."""
 
     kind: str = "euclidean"
-    dense: bool = TaskConfig.dense
-    success_reward: float = SUCCESS_REWARD
+    dense: bool = task_defaults.DENSE_REWARD
+    success_reward: float = task_defaults.SUCCESS_REWARD
     progress_weight: float = 0.0
 
     def __post_init__(self):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cathsim_dmc.anatomy.containment import Channel, Containment, lumen_field
+from cathsim_dmc.core import task_defaults
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire, TargetMarker
 from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.sim.arena import OperatingArena
@@ -44,7 +45,7 @@ def build_scene(
     target_radius_m: float,
     lao_deg: float = 0.0,
     blood_drag: bool = False,
-    physics: str | cs_physics.PhysicsSettings = cs_physics.DEFAULT_PHYSICS,
+    physics: str | cs_physics.PhysicsSettings = task_defaults.PHYSICS,
 ) -> NavigationScene:
     """Assembles the scene around the entities (which it attaches).
 

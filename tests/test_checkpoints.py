@@ -179,91 +179,37 @@ def test_resume_refuses_a_replay_buffer_from_another_step(tmp_path):
     (ckpt / f"replay_buffer_step_{STEPS}.pkl").rename(ckpt / "replay_buffer_step_20.pkl")
     with pytest.raises(RuntimeError, match=r"last\.zip is at step 40 but the replay buffer .*replay_buffer_step_20"):
         checkpoints.resume_checkpoint(ckpt)
-    # An older run's single replay_buffer.pkl is checked by its contents instead.
-    (ckpt / "replay_buffer_step_20.pkl").rename(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
+    # The buffer of last.zip's step is checked by its contents too, once loaded.
     from cathsim_dmc.learning.rl.sacfd import SACfD
 
     model = SACfD.load(ckpt / checkpoints.LAST_CHECKPOINT)
-    model.load_replay_buffer(ckpt / checkpoints.LEGACY_REPLAY_BUFFER)
+    model.load_replay_buffer(ckpt / "replay_buffer_step_20.pkl")
     checkpoints.check_replay_buffer_step(model.replay_buffer, STEPS, "buffer")
     with pytest.raises(RuntimeError, match=r"holds 40 transitions \(full\), not the 30 of the checkpoint"):
         checkpoints.check_replay_buffer_step(model.replay_buffer, 30, "buffer")
 
 
-def _with_saved_attributes(checkpoint, **attributes):
-    """Rewrite an SB3 checkpoint as if its model had carried `attributes` when it was saved."""
-    with zipfile.ZipFile(checkpoint) as archive:
-        members = {name: archive.read(name) for name in archive.namelist()}
-    data = json.loads(members["data"])
-    data.update(attributes)
-    members["data"] = json.dumps(data).encode()
-    with zipfile.ZipFile(checkpoint, "w") as archive:
-        for name, content in members.items():
-            archive.writestr(name, content)
-
-
-def test_a_checkpoint_with_removed_settings_resumes_without_them(tmp_path):
-    """Checkpoints saved before the Q-filter, the warm start and the slower actor were
-    removed carry those settings, and SB3's load sets them on the model: nothing may read
-    them (the actor learns at the full rate from the first step) and they are not saved again."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    from cathsim_dmc.learning.rl.sacfd import SACfD
-
-    _train(tmp_path, STEPS)
-    last = tmp_path / checkpoints.CHECKPOINT_DIR / checkpoints.LAST_CHECKPOINT
-    removed = dict(bc_filter="q", warm_start_steps=10 * STEPS, actor_learning_rate_scale=0.3)
-    _with_saved_attributes(last, **removed)
-    assert SACfD.load(last).warm_start_steps == 10 * STEPS  # what SB3 does with them
-
-    class Actor(BaseCallback):
-        def _on_training_start(self):
-            self.start = _weights(self.model.actor)
-
-        def _on_step(self):
-            return True
-
-    spy = Actor()
-    resumed = _train(tmp_path, 2 * STEPS, resume=True, callbacks=[spy])
-    assert not _same_weights(spy.start, _weights(resumed.model.actor))  # a warm start would have held it
-    algo, _ = _configs()
-    assert resumed.model.actor.optimizer.param_groups[0]["lr"] == algo["learning_rate"]
-    with zipfile.ZipFile(last) as archive:
-        assert not set(removed) & set(json.loads(archive.read("data")))
-
-
-def test_an_agent_trained_with_a_removed_task_option_fails_to_load_in_one_line(tmp_path):
-    """A policy.json written before insertion_limit_margin_m was removed: the agent, trained
-    with the limit on, would be scored on another task; left at None (off) it loads."""
+def test_a_run_of_another_run_format_is_refused_in_one_line_by_resume_and_by_its_readers(tmp_path):
     from cathsim_dmc.agents.trained import make_policy
 
-    env = training.make_vec_env("bca", "type1", "internal", 0, 1, {"max_steps": 3})
-    algo, _ = _configs()
-    algo.update(net_arch=[8])
-    model = training.build_sac(env, algo, 0, "cpu", None)
-    env.close()
-    model.save(tmp_path / "final_model.zip")
-
-    def policy_file(env_options):
-        info = {
-            "algo": "sac",
-            "obs": "internal",
-            "image_options": {},
-            "task": "bca",
-            "aorta": "type1",
-            "env_options": env_options,
-            "normalize_observations": False,
-        }
-        (tmp_path / run_files.POLICY_FILE).write_text(json.dumps(info))
-
-    policy_file({"insertion_limit_margin_m": 0.02, "physics": "fast"})
-    with pytest.raises(ValueError) as raised:
-        make_policy(str(tmp_path))
-    message = str(raised.value)
-    assert "trained with insertion_limit_margin_m=0.02" in message and "removed on 2026-11-27" in message
-    assert "\n" not in message
-    policy_file({"insertion_limit_margin_m": None, "physics": "fast"})
-    assert make_policy(str(tmp_path)).env_options == {"physics": "fast"}
+    _train(tmp_path, STEPS)
+    policy_file = tmp_path / run_files.POLICY_FILE
+    info = json.loads(policy_file.read_text())
+    assert info.pop(run_files.FORMAT_KEY) == run_files.RUN_FORMAT
+    last = tmp_path / checkpoints.CHECKPOINT_DIR / checkpoints.LAST_CHECKPOINT
+    before = last.read_bytes()
+    current = run_files.RUN_FORMAT
+    for version, expected in [
+        (None, f"was written by an older cathsim-dmc (run format 0, this version reads {current}); train it again"),
+        (current - 1, f"was written by an older cathsim-dmc (run format {current - 1}, this version reads {current})"),
+        (current + 1, f"was written by a newer cathsim-dmc (run format {current + 1}, this version reads {current})"),
+    ]:
+        policy_file.write_text(json.dumps(info if version is None else {**info, run_files.FORMAT_KEY: version}))
+        for load in (lambda: _train(tmp_path, 2 * STEPS, resume=True), lambda: make_policy(str(tmp_path))):
+            with pytest.raises(ValueError) as raised:
+                load()
+            assert expected in str(raised.value) and "\n" not in str(raised.value), version
+    assert last.read_bytes() == before  # the refused resumes trained nothing
 
 
 def test_stale_temporary_files_are_ignored_by_readers_and_removed_by_writers(tmp_path):

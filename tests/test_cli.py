@@ -8,6 +8,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from cathsim_dmc.core import run_files
 from cathsim_dmc.evaluation.trajectory import load_trajectories
 
 
@@ -94,7 +95,9 @@ def test_multirun_writes_one_combined_table(tmp_path):
 def test_corrupt_checkpoint_is_one_line_and_exit_2(tmp_path):
     run = tmp_path / "fake_run"
     run.mkdir()
-    (run / "policy.json").write_text('{"algo": "sac", "obs": "internal"}')
+    (run / run_files.POLICY_FILE).write_text(
+        json.dumps({run_files.FORMAT_KEY: run_files.RUN_FORMAT, "algo": "sac", "obs": "internal"})
+    )
     (run / "final_model.zip").write_bytes(b"not a zip file")
     result = _run([f"policy={run}", "episodes=1", f"hydra.run.dir={tmp_path}/out"], tmp_path)
     assert result.returncode == 2, result.stderr

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from cathsim_dmc.agents.collect import MANIFEST, collect
-from cathsim_dmc.learning.datasets import load_arrays, read_keys
+from cathsim_dmc.agents.collect import collect
+from cathsim_dmc.learning.datasets import MANIFEST, load_arrays, read_keys
 
 TINY = {"max_steps": 6}
 

@@ -1,8 +1,9 @@
 """cathsim-train's typed config (cathsim_dmc/app/train_schema.py): unknown keys, wrong types and
-out-of-range values fail in one line before any work; every default is defined once; run
-folders written before an option was removed or moved still resume, or say why not."""
+out-of-range values fail in one line before any work; every default is defined once; a run
+folder of another run format is refused in one line."""
 
 import dataclasses
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,11 @@ from omegaconf import OmegaConf
 
 from cathsim_dmc.app import tool_schemas as config_tools
 from cathsim_dmc.app import train_schema as config
+from cathsim_dmc.core import run_files, task_defaults
+from cathsim_dmc.core.registry import EXTRA_OBSERVATIONS
+from cathsim_dmc.core.settings import check_section
 from cathsim_dmc.core.shipped import conf_root
+from cathsim_dmc.learning.rl.settings import TrainerConfig
 
 CATHSIM_TRAIN = str(Path(sys.executable).parent / "cathsim-train")  # the installed console script
 
@@ -153,7 +158,7 @@ def test_the_schema_module_needs_no_simulator_and_no_cli():
 def test_the_extra_observation_names_are_the_tasks_own():
     from cathsim_dmc.tasks.observations import check_extra_observations
 
-    assert check_extra_observations(list(config.EXTRA_OBSERVATIONS)) == config.EXTRA_OBSERVATIONS
+    assert check_extra_observations(list(EXTRA_OBSERVATIONS)) == EXTRA_OBSERVATIONS
     with pytest.raises(ValueError, match="wire_slack"):
         check_extra_observations(["wire_slackness"])
 
@@ -170,6 +175,37 @@ def test_the_task_defaults_are_the_python_apis():
     shared = [name for name in schema if name in api and name != "target"]
     assert "delta_m" in shared and "physics" in shared
     assert {name: schema[name] for name in shared} == {name: api[name] for name in shared}
+
+
+def test_the_task_defaults_the_schema_shows_are_the_task_constants():
+    # Every constant of core/task_defaults.py, by the schema key that shows it; the Python
+    # API's reward and start pose take the same ones.
+    from cathsim_dmc.tasks.navigate import StartPose
+    from cathsim_dmc.tasks.rewards import NavigationReward
+
+    shown_as = {
+        "SUCCESS_RADIUS_M": "delta_m",
+        "SUCCESS_REWARD": "success_reward",
+        "DENSE_REWARD": "dense",
+        "MAX_STEPS": "max_steps",
+        "PHYSICS": "physics",
+        "START_ROTATION_RAD": "start_rotation_rad",
+        "START_ROTATION_JITTER_RAD": "start_rotation_jitter_rad",
+        "START_INSERTION_JITTER_M": "start_insertion_jitter_m",
+    }
+    constants = {name: value for name, value in vars(task_defaults).items() if name.isupper()}
+    assert set(constants) == set(shown_as)
+    schema = _schema_defaults(config.TaskConfig)
+    assert {shown_as[name]: value for name, value in constants.items()} == {
+        key: schema[key] for key in shown_as.values()
+    }
+    reward, start = NavigationReward(), StartPose()
+    assert (reward.success_reward, reward.dense) == (schema["success_reward"], schema["dense"])
+    assert (start.rotation_rad, start.rotation_jitter_rad, start.insertion_jitter_m) == (
+        schema["start_rotation_rad"],
+        schema["start_rotation_jitter_rad"],
+        schema["start_insertion_jitter_m"],
+    )
 
 
 def test_the_start_pose_on_the_command_line_reaches_the_task():
@@ -198,106 +234,42 @@ def test_the_start_pose_on_the_command_line_reaches_the_task():
 
 def test_every_ranged_option_has_a_default_inside_its_range():
     for name, schema in config.TRAIN_SECTIONS.items():
-        config.check_section(name, schema, _schema_defaults(schema))
-    assert [spec.name for spec in dataclasses.fields(config.TrainerConfig) if spec.metadata]
+        check_section(name, schema, _schema_defaults(schema))
+    assert [spec.name for spec in dataclasses.fields(TrainerConfig) if spec.metadata]
 
 
-# A run folder's config.yaml as older versions wrote it (demos=none), with every option since
-# moved or removed.
-OLD_RUN_CONFIG = """
-task: {target: bca, delta_m: 0.004, success_reward: 10.0, dense: true, max_steps: 20, insertion_limit_margin_m: null,
-       physics: fast, catheter: null}
-aorta: {name: type1, label: type1}
-obs: {name: internal, observables: [joint_pos, joint_vel], renderer: null, style: null, lao_deg: 0}
-algo: {name: sac_tuned, learning_rate: 0.0003, buffer_size: 2000, batch_size: 16, tau: 0.005, gamma: 0.99,
-       train_freq: 1, gradient_steps: 1, target_update_interval: 1, target_entropy: -2.0, ent_coef: auto_0.05,
-       learning_starts: 20, net_arch: [256, 256], share_features_extractor: false, critic_layer_norm: true,
-       actor_average_tau: 0.005, actor_learning_rate_scale: 1.0}
-reward: {name: progress, kind: geodesic, progress_weight: 1.0, aim_weight: 0.0}
-demos: {episodes: 0, share: 0.5, capacity: 20000, pretrain_actor_steps: 0, critic_warmup_steps: 0, bc_weight: 0.0,
-        warm_start_steps: 0, bc_filter: q, takeover_rounds: 0, takeover_episodes: 20, takeover_max_student_steps: 200,
-        path: null}
-seed: 0
-resume: null
-trainer: {total_timesteps: 30, n_envs: 1, eval_every: 0, eval_episodes: 1, final_eval_episodes: 1,
-          confirm_episodes: 0, checkpoint_every: 10, save_replay_buffer: false, device: auto, torch_threads: 1,
-          progress_bar: false, video: false, normalize_observations: true, final_policy: best}
-experimental: {expert_end_game: strokes}
-"""
-
-
-def test_an_old_run_config_has_its_moved_keys_translated_and_its_inert_removed_keys_dropped(caplog):
-    old = OmegaConf.create(OLD_RUN_CONFIG)
-    with caplog.at_level("WARNING", logger="cathsim_dmc.app.train_schema"):
-        cfg = config.upgrade_saved_config(old)
-    assert cfg.experimental.normalize_observations is True and "normalize_observations" not in cfg.trainer
-    assert "bc_filter" not in cfg.demos and "aim_weight" not in cfg.reward
-    config_tools.validate(cfg)
-    warnings = [r.getMessage() for r in caplog.records]
-    assert len(warnings) == 1
-    for key in config.REMOVED:
-        assert key in warnings[0]
-    assert cfg.trainer.total_timesteps == 30 and cfg.algo.batch_size == 16  # the run's own settings
+def _run_folder(path, policy: dict | None):
+    """A cathsim-train run folder as far as resuming reads it first: its config.yaml and
+    policy.json (None: none, as a run stopped before its first checkpoint leaves it)."""
+    path.mkdir()
+    cfg = OmegaConf.create(_compose(overrides=["obs=internal", "demos=none"]))
+    (path / config.RUN_CONFIG).write_text(OmegaConf.to_yaml(cfg))
+    if policy is not None:
+        (path / run_files.POLICY_FILE).write_text(json.dumps(policy))
 
 
 @pytest.mark.parametrize(
-    "change, expected",
+    "version, expected",
     [
-        ({"demos": {"episodes": 10, "bc_weight": 0.5, "bc_filter": "q"}}, "demos.bc_filter='q'"),
-        ({"trainer": {"confirm_episodes": 20}}, "trainer.confirm_episodes=20"),
-        ({"algo": {"actor_learning_rate_scale": 0.3}}, "algo.actor_learning_rate_scale=0.3"),
-        ({"task": {"insertion_limit_margin_m": 0.02}}, "task.insertion_limit_margin_m=0.02"),
-        ({"reward": {"name": "aim", "aim_weight": 2.0}}, "reward=aim"),
-        ({"experimental": {"expert_end_game": "relay"}}, "experimental.expert_end_game='relay'"),
+        (None, f"older cathsim-dmc (run format 0, this version reads {run_files.RUN_FORMAT}); train it again"),
+        (run_files.RUN_FORMAT - 1, f"(run format {run_files.RUN_FORMAT - 1}, this version reads"),
+        (run_files.RUN_FORMAT + 1, f"newer cathsim-dmc (run format {run_files.RUN_FORMAT + 1}, this version reads"),
     ],
 )
-def test_an_old_run_that_used_a_removed_option_says_so_in_one_line(change, expected):
-    old = OmegaConf.merge(OmegaConf.create(OLD_RUN_CONFIG), change)
-    with pytest.raises(ValueError) as raised:
-        config.upgrade_saved_config(old)
-    assert expected in str(raised.value) and "removed" in str(raised.value) and "\n" not in str(raised.value)
-
-
-def test_resuming_an_old_run_that_used_a_removed_option_fails_in_one_line_before_any_work(tmp_path):
+def test_resuming_a_run_of_another_run_format_fails_in_one_line_before_any_work(version, expected, tmp_path):
     run = tmp_path / "old_run"
-    run.mkdir()
-    old = OmegaConf.merge(OmegaConf.create(OLD_RUN_CONFIG), {"trainer": {"confirm_episodes": 20}})
-    (run / "config.yaml").write_text(OmegaConf.to_yaml(old))
+    policy = {"algo": "sac", "obs": "internal", "task": "bca", "aorta": "type1"}
+    _run_folder(run, policy if version is None else {run_files.FORMAT_KEY: version, **policy})
     line = _one_line(_train([f"resume={run}", f"hydra.run.dir={tmp_path / 'log'}"], tmp_path))
-    assert "trainer.confirm_episodes=20" in line
-    assert sorted(p.name for p in run.iterdir()) == ["config.yaml"]
+    assert f"{run} was written by" in line and expected in line
+    assert sorted(p.name for p in run.iterdir()) == sorted([config.RUN_CONFIG, run_files.POLICY_FILE])
 
 
-def test_an_old_run_folder_resumes_with_one_warning_naming_the_dropped_options(tmp_path):
-    tiny = [
-        "obs=internal",
-        "demos=none",
-        "task.max_steps=20",
-        "algo.learning_starts=20",
-        "algo.batch_size=16",
-        "algo.buffer_size=2000",
-        "trainer.checkpoint_every=20",
-        "trainer.eval_every=0",
-        "trainer.eval_episodes=1",
-        "trainer.final_eval_episodes=1",
-        "trainer.video=false",
-        "trainer.progress_bar=false",
-    ]
+def test_resuming_a_folder_without_policy_json_says_there_is_nothing_to_resume(tmp_path):
     run = tmp_path / "run"
-    first = _train([*tiny, "trainer.total_timesteps=20", f"hydra.run.dir={run}"], tmp_path)
-    assert first.returncode == 0, first.stderr[-2000:]
-    # Rewrite its config.yaml as the version before the schema wrote it.
-    saved = OmegaConf.to_container(OmegaConf.load(run / "config.yaml"))
-    old = OmegaConf.to_container(OmegaConf.create(OLD_RUN_CONFIG))
-    for section in ("task", "algo", "demos", "trainer"):
-        old[section] = {**saved[section], **{k: v for k, v in old[section].items() if k not in saved[section]}}
-    old["trainer"]["normalize_observations"] = False
-    (run / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(old)))
-    again = _train([f"resume={run}", "trainer.total_timesteps=30", f"hydra.run.dir={tmp_path}/resume"], tmp_path)
-    assert again.returncode == 0, again.stderr[-2000:]
-    warnings = [line for line in (again.stdout + again.stderr).splitlines() if "dropped options" in line]
-    assert len(warnings) == 1 and "demos.bc_filter" in warnings[0] and "trainer.confirm_episodes" in warnings[0]
-    assert (run / "checkpoints" / "step_30.zip").is_file() or (run / "checkpoints" / "last.zip").is_file()
+    _run_folder(run, None)
+    line = _one_line(_train([f"resume={run}", f"hydra.run.dir={tmp_path / 'log'}"], tmp_path))
+    assert f"nothing to resume in {run}: no {run_files.POLICY_FILE}" in line
 
 
 def test_the_image_keys_the_schema_accepts_are_the_students():

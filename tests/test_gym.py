@@ -6,7 +6,8 @@ import pytest
 
 import cathsim_dmc  # noqa: F401  (registers the ids)
 from cathsim_dmc import tasks
-from cathsim_dmc.suite.gym import CathSimEnv, env_id
+from cathsim_dmc.core.registry import env_id
+from cathsim_dmc.suite.gym import CathSimEnv
 
 
 def test_every_pair_is_registered():

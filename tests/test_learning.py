@@ -631,11 +631,11 @@ def test_the_chosen_expert_records_takes_over_and_labels(tmp_path):
     """demos.expert=expert_steady: every demonstration, takeover and DAgger label comes from
     the steady expert, which never turns while the tip climbs the descending aorta (the
     default expert does turn there, at these starts)."""
-    from cathsim_dmc.app.train_schema import DEMONSTRATORS
     from cathsim_dmc.control.policies import BUILTIN_POLICIES
     from cathsim_dmc.learning.rl import train as training
+    from cathsim_dmc.learning.rl.settings import DEMONSTRATORS
 
-    assert set(DEMONSTRATORS) <= set(BUILTIN_POLICIES)  # every name the schema accepts can be built
+    assert set(DEMONSTRATORS) <= set(BUILTIN_POLICIES)  # every name demos.expert accepts can be built
     algo = dict(learning_starts=10, batch_size=16, net_arch=[32, 32])
     demos = dict(
         episodes=2,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cathsim_dmc.agents.pretrained import load_pretrained, policy_files, shipped_targets
+from cathsim_dmc.agents.trained import load_pretrained, policy_files, shipped_targets
 from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 

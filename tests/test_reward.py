@@ -159,15 +159,3 @@ def test_a_reward_is_its_terms_added_up():
     assert sparse.step_reward(0.030, 0.034, False, step_m) == pytest.approx(-0.5)  # 4 mm away: -weight
     with pytest.raises(ValueError, match="euclidean"):
         NavigationReward(kind="manhattan")
-
-
-@pytest.mark.parametrize("name", ["aim_weight", "insertion_limit_margin_m"])
-def test_a_removed_argument_fails_in_one_line_saying_so(name):
-    from cathsim_dmc.tasks import Navigate
-
-    # Navigate itself refuses it before it looks at anything else (here, no entities at all).
-    with pytest.raises(ValueError, match=f"{name} was removed on 2026-11-27") as raised:
-        Navigate(None, None, None, **{name: 0.0})
-    assert "\n" not in str(raised.value)
-    with pytest.raises(TypeError, match="aim_weigth"):  # a misspelling stays an unknown argument
-        Navigate(None, None, None, aim_weigth=0.0)

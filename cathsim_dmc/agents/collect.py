@@ -28,7 +28,7 @@ import numpy as np
 
 from cathsim_dmc.core.run_files import remove_temporaries, write_atomic
 from cathsim_dmc.evaluation.trajectory import SCHEMA_VERSION, TrajectoryRecorder, action_rows
-from cathsim_dmc.learning.datasets import MANIFEST, read_manifest  # noqa: F401  (MANIFEST: public here too)
+from cathsim_dmc.learning.datasets import MANIFEST, read_manifest
 
 log = logging.getLogger("cathsim-collect")
 

@@ -1,6 +1,7 @@
 """Pretrained navigators shipped with the package: the actor's weights only, with a model card.
+This module writes them (`export_actor`); cathsim_dmc.agents.trained loads them.
 
-    from cathsim_dmc.agents.pretrained import load_pretrained
+    from cathsim_dmc.agents.trained import load_pretrained
     policy = load_pretrained("lcca")          # a CheckpointPolicy: action = policy(observation, env)
 
     cathsim-eval policy=pretrained task=lcca aorta=type3       # any shipped name or asset folder
@@ -18,14 +19,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from cathsim_dmc.agents.trained import (  # noqa: F401
-    POLICY_FOLDER,
-    PRETRAINED,
-    PretrainedActor,
-    load_pretrained,
-    policy_files,
-    shipped_targets,
-)
+from cathsim_dmc.agents.trained import policy_files
 
 
 def export_actor(checkpoint, target: str, card: str, folder: Path | None = None, trained: dict | None = None) -> Path:

@@ -17,10 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.app.train_schema import REMOVED_TASK_ARGUMENTS
 from cathsim_dmc.control.policies import BUILTIN_POLICIES
 from cathsim_dmc.control.policies import make_policy as make_builtin_policy
-from cathsim_dmc.core.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path  # noqa: F401  (public here too)
+from cathsim_dmc.core.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path, read_policy_file
 from cathsim_dmc.core.shipped import assets_root
 
 
@@ -99,27 +98,24 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
     """Load a checkpoint written by cathsim-train (or cathsim-bc).
 
     Its `policy.json` (next to it, or in the run folder above) names the algorithm and
-    the observation preset the agent was trained with. An agent trained with a task
-    option since removed fails in one line (ValueError): it would be evaluated on a task
-    other than its own.
+    the observation preset the agent was trained with. A checkpoint of another version's
+    run format fails in one line (ValueError, `run_files.read_policy_file`).
     """
     model_path = find_checkpoint(path)
     info = None
     for folder in (model_path.parent, model_path.parent.parent):
         if (folder / POLICY_FILE).is_file():
-            info = json.loads((folder / POLICY_FILE).read_text())
+            info = read_policy_file(folder / POLICY_FILE, what=model_path)
             break
     if info is None:
         raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
-    env_options = trained_env_options(model_path, info.get("env_options"))
     algo = info.get("algo", "sac")
     try:
         if algo == "sac":
-            from cathsim_dmc.learning.rl.sacfd import SACfD
+            from cathsim_dmc.learning.rl.checkpoints import load_policy_model
 
-            model = SACfD.load(model_path, device="cpu")
-            if model.actor_average is not None:  # the recipe's deterministic policy, as evaluated in training
-                model.actor.load_state_dict(model.actor_average)
+            # the recipe's deterministic policy: SACfD's averaged actor, as evaluated in training
+            model = load_policy_model(model_path)
         elif algo == "bc":
             from cathsim_dmc.learning.supervised.bc import load_bc_policy
 
@@ -139,22 +135,9 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
             normalizer = load_normalizer(stats)
         except (OSError, EOFError, AttributeError, pickle.UnpicklingError) as error:
             raise ValueError(f"{stats} is not a readable normaliser ({type(error).__name__}: {error})") from error
-    return CheckpointPolicy(model, info["obs"], info.get("image_options"), env_options, normalizer, path=model_path)
-
-
-def trained_env_options(model_path, env_options: dict | None) -> dict:
-    """A checkpoint's `env_options` as the current task takes them. A removed option left
-    at None (off: what the task now always does) is dropped; one that was on fails in one
-    line, naming it."""
-    options = dict(env_options or {})
-    for name in [name for name in options if name in REMOVED_TASK_ARGUMENTS]:
-        value = options.pop(name)
-        if value is not None:
-            raise ValueError(
-                f"{model_path} was trained with {name}={value!r}, an option "
-                f"{REMOVED_TASK_ARGUMENTS[name]}; it cannot be evaluated on the task it was trained for"
-            )
-    return options
+    return CheckpointPolicy(
+        model, info["obs"], info.get("image_options"), info.get("env_options"), normalizer, path=model_path
+    )
 
 
 # -- the shipped navigators (cathsim_dmc.agents.pretrained writes them) ----------------------

@@ -1,7 +1,6 @@
 """The typed schemas of the tools other than cathsim-train (conf/<tool>.yaml), beside
 cathsim_dmc/app/train_schema.py's; their registration in Hydra's ConfigStore and the check of any
-tool's composed config (`validate`). Kept apart from config.py, which the simulation
-imports for its defaults, so that the simulation never reaches torch (`check_cuda`).
+tool's composed config (`validate`, on cathsim_dmc.core.settings' ranges).
 
 Here the YAML file keeps each default and the comment that explains it; the schema holds
 its type and range, so its fields are MISSING until the YAML fills them in. A value of the
@@ -13,16 +12,9 @@ from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any, List, Optional
 
-from cathsim_dmc.app.train_schema import (
-    MISSING,
-    AlgoConfig,
-    DemosConfig,
-    ScenarioConfig,
-    TaskConfig,
-    TrainConfig,
-    _number,
-    check_section,
-)
+from cathsim_dmc.app.train_schema import MISSING, ScenarioConfig, TaskConfig, TrainConfig
+from cathsim_dmc.core.settings import check_section, setting
+from cathsim_dmc.learning.rl.settings import AlgoConfig, DemosConfig
 
 VIDEO_FORMATS = ("gif", "mp4")
 IMAGE_KEYS = ("pixels", "guidewire_mask")  # the image a student (bc) or force network sees
@@ -38,7 +30,7 @@ def _folder():
 
 def _set(minimum=None, **check):
     """A ranged option whose default is its tool's YAML file's."""
-    return _number(MISSING, minimum=minimum, **check)
+    return setting(MISSING, minimum=minimum, **check)
 
 
 @dataclass
@@ -74,7 +66,7 @@ class BCOptions:
     image_key: str = _set(choices=IMAGE_KEYS)
     epochs: int = _set(1, whole=True)
     batch_size: int = _set(1, whole=True)
-    learning_rate: float = _number(MISSING, above=0.0)
+    learning_rate: float = setting(MISSING, above=0.0)
     entropy_coef: float = _set(0.0)
     l2_coef: float = _set(0.0)
     distill_coef: float = _set(0.0)
@@ -104,12 +96,12 @@ class ForceOptions:
     epochs: int = _set(1, whole=True)
     min_updates: int = _set(0, whole=True)
     batch_size: int = _set(1, whole=True)
-    learning_rate: float = _number(MISSING, above=0.0)
+    learning_rate: float = setting(MISSING, above=0.0)
     z_coef: float = _set(0.0)
-    test_fraction: float = _number(MISSING, above=0.0, below=1.0)  # 0 or 1: no test or no training episode
+    test_fraction: float = setting(MISSING, above=0.0, below=1.0)  # 0 or 1: no test or no training episode
     val_fraction: float = _set(0.0, below=1.0)
     init_from: Optional[str] = MISSING
-    outlier_n: Optional[float] = _number(MISSING, above=0.0)
+    outlier_n: Optional[float] = setting(MISSING, above=0.0)
 
 
 @dataclass

@@ -99,13 +99,17 @@ def _expert(seed: int = 0, **options):
     return CenterlineExpert(**options)
 
 
+# The scripted experts: the policies that can demonstrate, take over and label in training.
+EXPERT_POLICIES = {
+    "expert": _expert,
+    # the expert without turns on straight stretches: data for image-only students
+    "expert_steady": lambda seed=0: _expert(seed, hold_rotation_on_straight=True),
+}
 BUILTIN_POLICIES = {
     "forward": lambda seed=0: ForwardPolicy(),
     "random": RandomPolicy,
     "adversarial": AdversarialPolicy,
-    "expert": _expert,
-    # the expert without turns on straight stretches: data for image-only students
-    "expert_steady": lambda seed=0: _expert(seed, hold_rotation_on_straight=True),
+    **EXPERT_POLICIES,
 }
 
 

@@ -16,6 +16,8 @@ ENV_ID_FORMAT = "cathsim_dmc/{task}-{aorta}-v0"
 ENTRY_POINT = "cathsim_dmc.suite.gym:make_registered"
 RANDOM_AORTA = "random"  # tasks.load's randomised anatomy (cathsim_dmc.tasks.randomized)
 CUSTOM_AORTA = "custom"  # generated from `aorta_params` (cached after the first build)
+# tasks.load(extra_observations=...)'s names (cathsim_dmc.tasks.observations builds them)
+EXTRA_OBSERVATIONS = ("wire_slack", "drive_force", "tip_position", "contact_force")
 
 
 def env_id(task: str, aorta: str) -> str:

@@ -1,6 +1,7 @@
-"""Files beside a checkpoint, shared by their writers (rl/checkpoints.py, supervised/bc.py,
-supervised/collect.py) and their readers (agents.py, supervised/data.py), so that neither
-side imports the other.
+"""Files beside a checkpoint, shared by their writers (learning/rl/checkpoints.py,
+learning/supervised/bc.py, agents/collect.py) and their readers (agents/trained.py,
+learning/datasets.py), so that neither side imports the other. policy.json records the run
+format (`RUN_FORMAT`) its readers check.
 
 Every file is written under a temporary name and renamed into place, so a reader never
 sees half a file. A temporary name is hidden and carries `.tmp` (`.last.tmp.zip`), keeps
@@ -9,11 +10,17 @@ pattern (`shard_*.npz`, `*.zip`), and is removed when a writer starts again."""
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 from pathlib import Path
 
 POLICY_FILE = "policy.json"  # next to a checkpoint: what it needs to be evaluated
+# The version of the run files (policy.json, the checkpoints and the config beside it) this
+# cathsim-dmc writes and reads; policy.json records it. Files without it (run format 0) or
+# with another are refused in one line (`read_policy_file`), never read half-right.
+RUN_FORMAT = 1
+FORMAT_KEY = "format_version"
 NORMALIZER_SUFFIX = ".vecnormalize.pkl"  # <checkpoint>.vecnormalize.pkl: its observation normaliser
 TEMPORARY_MARK = ".tmp"
 
@@ -60,6 +67,44 @@ def load_normalizer(path):
         normalizer = pickle.load(f)
     normalizer.training = False
     return normalizer
+
+
+def write_policy_file(folder, info: dict, indent: int | None = None) -> Path:
+    """`<folder>/policy.json`: `info` (what evaluating the checkpoint needs) in this
+    version's run format (atomic)."""
+    record = {FORMAT_KEY: RUN_FORMAT, **info}
+    return write_atomic(Path(folder) / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(record, indent=indent)))
+
+
+def read_policy_file(path, what=None) -> dict:
+    """The policy.json at `path`; ValueError in one line naming `what` (the checkpoint or
+    run folder it describes; default: the file) when another version's run format wrote it."""
+    info = json.loads(Path(path).read_text())
+    found = info.get(FORMAT_KEY, 0) if isinstance(info, dict) else None
+    whole = isinstance(found, int) and not isinstance(found, bool)
+    if whole and found == RUN_FORMAT:
+        return info
+    what = path if what is None else what
+    if whole and found > RUN_FORMAT:
+        raise ValueError(
+            f"{what} was written by a newer cathsim-dmc (run format {found}, this version reads {RUN_FORMAT}); "
+            f"update cathsim-dmc to use it"
+        )
+    raise ValueError(
+        f"{what} was written by an older cathsim-dmc (run format {found if whole else repr(found)}, "
+        f"this version reads {RUN_FORMAT}); train it again"
+    )
+
+
+def check_run_format(run_dir) -> dict:
+    """The policy.json of the run folder `run_dir` (`read_policy_file`), before a run is
+    continued: FileNotFoundError when it has none, ValueError for another run format."""
+    path = Path(run_dir) / POLICY_FILE
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"nothing to resume in {run_dir}: no {POLICY_FILE} (a run writes it before its first checkpoint)"
+        )
+    return read_policy_file(path, what=run_dir)
 
 
 class Interrupted(KeyboardInterrupt):

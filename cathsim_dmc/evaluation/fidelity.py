@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
+from cathsim_dmc.core import task_defaults
 from cathsim_dmc.entities import FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import CatheterOverWire
 from cathsim_dmc.entities.guidewire import second_moment_of_area
@@ -28,7 +29,7 @@ from cathsim_dmc.sim import physics as cs_physics
 from cathsim_dmc.sim.arena import OperatingArena
 
 
-def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSICS) -> mjcf.Physics:
+def bare_wire_physics(wire: Guidewire, physics_setting=task_defaults.PHYSICS) -> mjcf.Physics:
     """The wire alone, its proximal segment welded at the origin, pointing along +z, no gravity."""
     root = mjcf.RootElement()
     root.option.set_attributes(gravity=[0, 0, 0], integrator="implicitfast", timestep=wire.physics_timestep_s)
@@ -39,7 +40,7 @@ def bare_wire_physics(wire: Guidewire, physics_setting=cs_physics.DEFAULT_PHYSIC
 
 def cantilever_deflection(
     n_segments: int,
-    physics_setting=cs_physics.DEFAULT_PHYSICS,
+    physics_setting=task_defaults.PHYSICS,
     length_m: float = 0.1,
     force_n: float = 1e-3,
     youngs_modulus_pa: float = 40e9,
@@ -88,7 +89,7 @@ def cantilever_deflection(
     return float(data.site_xpos[tip_site][0]), float(analytic), at_rest
 
 
-def tip_rest_angle(shape: str, angle_deg: float, physics_setting=cs_physics.DEFAULT_PHYSICS) -> tuple[float, float]:
+def tip_rest_angle(shape: str, angle_deg: float, physics_setting=task_defaults.PHYSICS) -> tuple[float, float]:
     """(angle between shaft and tip in degrees, x of the tip in metres) of a 10-segment wire
     with a shaped tip after 500 physics steps from its rest shape; the bend points to +x."""
     wire = Guidewire(length_m=0.1, n_segments=10, tip_shape=shape, tip_angle_deg=angle_deg)
@@ -115,7 +116,7 @@ WALL_FACE_M = 0.035  # where `wall_push`'s wall face lies along the insertion ax
 
 
 def wall_push(
-    margin_m: float = 0.0, physics_setting=cs_physics.DEFAULT_PHYSICS, push_n: float = 1.0, steps: int = 1000
+    margin_m: float = 0.0, physics_setting=task_defaults.PHYSICS, push_n: float = 1.0, steps: int = 1000
 ) -> WallPush:
     """A solid wire driven along +z at the robot's force limit `push_n` into a flat wall
     (faces at z = 0.035 m; a wall with a contact margin is moved back by it, as the vessel
@@ -193,7 +194,7 @@ class InsertionResponse:
 
 
 def insertion_response(
-    physics_setting=cs_physics.DEFAULT_PHYSICS,
+    physics_setting=task_defaults.PHYSICS,
     aorta: str = "type1",
     insert_steps: int = 50,
     retract_steps: int = 15,

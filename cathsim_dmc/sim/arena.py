@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer
 
-from cathsim_dmc.sim.physics import DEFAULT_PHYSICS, PhysicsSettings, physics_settings
+from cathsim_dmc.core import task_defaults
+from cathsim_dmc.sim.physics import PhysicsSettings, physics_settings
 
 PHYSICS_TIMESTEP_S = 0.005  # the guidewire's default; tasks take the wire's own
 BLOOD_DENSITY_KG_M3 = 1055.0  # whole blood (Kenner 1989)
@@ -27,7 +28,7 @@ class OperatingArena(composer.Arena):
         name: str = "operating_room",
         timestep_s: float = PHYSICS_TIMESTEP_S,
         blood_drag: bool = False,
-        physics: str | PhysicsSettings = DEFAULT_PHYSICS,
+        physics: str | PhysicsSettings = task_defaults.PHYSICS,
     ):
         """Builds the scene.
 

@@ -16,8 +16,6 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from cathsim_dmc.app.train_schema import TaskConfig
-
 _WARNINGS_DIVERGENT = (
     mujoco.mjtWarning.mjWARN_BADQACC,
     mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -93,7 +91,7 @@ PHYSICS_SETTINGS = {
 }
 # The PGS settings passed the fidelity gate against `accurate` (2026-11-25), the field wall
 # against `fast` (2026-11-26): experiments/fidelity_gate.py; docs/model.md, "Solver settings".
-DEFAULT_PHYSICS = TaskConfig.physics  # "fast", defined once in the task config's schema
+# The default, "fast", is cathsim_dmc.core.task_defaults.PHYSICS (the command-line tools' too).
 
 
 def physics_settings(physics) -> PhysicsSettings:

@@ -18,7 +18,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from cathsim_dmc.core.registry import ENV_ID_FORMAT, env_id, register_all  # noqa: F401  (the ids' home)
+from cathsim_dmc.core.registry import env_id
 
 IMAGE_KEYS = ("pixels", "guidewire_mask")
 

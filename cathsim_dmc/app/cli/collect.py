@@ -19,10 +19,11 @@ log = logging.getLogger("cathsim-collect")
 def run(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
 
-    from cathsim_dmc.agents.collect import MANIFEST, collect, read_manifest
+    from cathsim_dmc.agents.collect import collect
     from cathsim_dmc.app.cli._common import IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.core.checks import check_number
     from cathsim_dmc.core.run_files import Interrupted, lock_folder
+    from cathsim_dmc.learning.datasets import MANIFEST, read_manifest
 
     kwargs = env_kwargs(cfg)
     # The dataset always records every modality (supervised/collect.py); the obs group gives the

@@ -27,7 +27,7 @@ def run(cfg) -> dict:
     from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.app.cli._common import AGENT_OPTIONS, IMAGE_OPTIONS, env_kwargs, pick
     from cathsim_dmc.app.tool_schemas import validate
-    from cathsim_dmc.app.train_schema import upgrade_saved_config
+    from cathsim_dmc.app.train_schema import resumed_config
     from cathsim_dmc.core.run_files import Interrupted, lock_folder
     from cathsim_dmc.evaluation.rollouts import METRICS_MD, evaluate_policy
     from cathsim_dmc.learning.rl.checkpoints import BEST_MODEL, CHECKPOINT_DIR, FINAL_MODEL, best_record
@@ -41,8 +41,9 @@ def run(cfg) -> dict:
         if not saved.is_file():
             raise FileNotFoundError(f"resume={resume!r} is not a cathsim-train run folder (no config.yaml)")
         lock_folder(run_dir)  # one process at a time continues a run, whatever its hydra.run.dir
-        # The run continues with its own settings (in today's schema); only the step budget may be raised.
-        original = upgrade_saved_config(OmegaConf.load(saved))
+        # The run continues with its own settings (a run of another version is refused); only the
+        # step budget may be raised.
+        original = resumed_config(run_dir)
         if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
             original.trainer.total_timesteps = cfg.trainer.total_timesteps
         cfg = original

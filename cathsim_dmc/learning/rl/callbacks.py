@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 
+from cathsim_dmc.core import run_files
 from cathsim_dmc.learning.rl.checkpoints import (
     BEST_MODEL,
     CHECKPOINT_DIR,
@@ -24,6 +25,7 @@ from cathsim_dmc.learning.rl.checkpoints import (
     copy_model,
     evaluated_wall_seconds,
     keep_if_best,
+    load_policy_model,
     read_evaluations,
     save_checkpoint,
     write_best_record,
@@ -44,6 +46,25 @@ def deterministic_policy(model):
         return model.predict(observation, deterministic=True)[0]
 
     return act
+
+
+def saved_policy(path: Path, normalized: bool):
+    """`policy(observation, env) -> action` of the model saved at `path` (a run's .zip), as
+    cathsim-eval plays it: the deterministic action of its evaluated actor
+    (`load_policy_model`), through the normaliser saved beside it when `normalized`.
+
+    :returns: (the policy, the loaded model)
+    """
+    model = load_policy_model(path)
+    normalizer = run_files.load_normalizer(run_files.normalizer_path(path)) if normalized else None
+
+    def act(observation, env) -> np.ndarray:
+        if normalizer is not None:
+            observation = normalizer.normalize_obs(observation)
+        action, _ = model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+    return act, model
 
 
 class EpisodeStats(BaseCallback):
@@ -325,7 +346,6 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     """
     import hashlib
 
-    from cathsim_dmc.agents.trained import load_checkpoint_policy
     from cathsim_dmc.evaluation.rollouts import run_episodes
 
     run_dir = Path(run_dir)
@@ -333,6 +353,7 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     if extra_episodes <= 0 or not has_unbroken_tie(run_dir):
         return None
     evaluations = read_evaluations(run_dir)
+    normalized = bool(run_files.check_run_format(run_dir).get("normalize_observations"))
     top = max(e["success_rate"] for e in evaluations)
     ckpt_dir = run_dir / CHECKPOINT_DIR
     files = {}
@@ -351,8 +372,8 @@ def break_best_tie(run_dir: Path, make_eval_env, periodic_episodes: int, extra_e
     )
     candidates, seen = [], set()
     for step, (path, e) in files.items():
-        policy = load_checkpoint_policy(path)
-        weights = hashlib.sha1(b"".join(v.cpu().numpy().tobytes() for v in policy.model.actor.state_dict().values()))
+        policy, model = saved_policy(path, normalized)
+        weights = hashlib.sha1(b"".join(v.cpu().numpy().tobytes() for v in model.actor.state_dict().values()))
         if weights.hexdigest() in seen:  # e.g. the pre-trained actor again, before the first update
             continue
         seen.add(weights.hexdigest())

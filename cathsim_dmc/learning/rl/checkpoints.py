@@ -26,7 +26,6 @@ CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.zip"
 REPLAY_BUFFER_FORMAT = "replay_buffer_step_{}.pkl"  # saved with the checkpoint of that step
 REPLAY_BUFFER_GLOB = "replay_buffer_step_*.pkl"
-LEGACY_REPLAY_BUFFER = "replay_buffer.pkl"  # before 2026-11-25: one file, its step not recorded
 FINAL_MODEL = "final_model.zip"
 BEST_MODEL = "best.zip"  # the checkpoint with the best periodic deterministic evaluation
 BEST_RECORD = "best.json"
@@ -53,7 +52,8 @@ def write_policy_file(
     normalize_observations: bool = False,
 ) -> None:
     """policy.json: what evaluating the checkpoint needs (observation preset, image options,
-    and the environment options it was trained with that change what it sees or drives)."""
+    and the environment options it was trained with that change what it sees or drives), in
+    this version's run format (`run_files.RUN_FORMAT`)."""
     info = {
         "algo": "sac",
         "obs": cfg_obs,
@@ -63,7 +63,7 @@ def write_policy_file(
         "env_options": dict(env_options or {}),
         "normalize_observations": bool(normalize_observations),
     }
-    run_files.write_atomic(Path(run_dir) / run_files.POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info)))
+    run_files.write_policy_file(run_dir, info)
 
 
 def save_model(model, path: Path) -> None:
@@ -72,6 +72,18 @@ def save_model(model, path: Path) -> None:
     if normalizer is not None:
         run_files.write_atomic(run_files.normalizer_path(path), lambda tmp: normalizer.save(tmp))
     run_files.write_atomic(path, lambda tmp: model.save(tmp))
+
+
+def load_policy_model(path: Path, device: str = "cpu"):
+    """The SAC model saved at `path` (a .zip of a run), its actor the deterministic policy
+    the run evaluated: SACfD's averaged actor when it kept one (`actor_average_tau` > 0).
+    Its observation normaliser, if any, is `run_files.normalizer_path(path)`."""
+    from cathsim_dmc.learning.rl.sacfd import SACfD
+
+    model = SACfD.load(path, device=device)
+    if model.actor_average is not None:
+        model.actor.load_state_dict(model.actor_average)
+    return model
 
 
 def replay_buffer_path(folder: Path, step: int) -> Path:
@@ -116,7 +128,6 @@ def save_checkpoint(model, folder: Path, replay_buffer: bool) -> Path:
     for old_step, path in _replay_buffer_steps(folder).items():
         if old_step != step or not replay_buffer:
             path.unlink(missing_ok=True)
-    (folder / LEGACY_REPLAY_BUFFER).unlink(missing_ok=True)
     return last
 
 
@@ -144,9 +155,7 @@ def resume_checkpoint(folder: Path) -> tuple:
             f"{last} is at step {step} but the replay buffer in {folder} ({found}) is not; "
             f"delete the buffer to resume with an empty one"
         )
-    # An older run's single file: its step is checked from its contents once loaded.
-    legacy = folder / LEGACY_REPLAY_BUFFER
-    return last, step, legacy if legacy.is_file() else None
+    return last, step, None
 
 
 def check_replay_buffer_step(buffer, step: int, source) -> None:

@@ -113,12 +113,6 @@ class SACfD(SAC):
     :param kwargs: SB3's SAC arguments
     """
 
-    # Settings of earlier versions (the Q-filter, a warm start, a slower actor) that
-    # measured no gain and were removed. Checkpoints saved before carry them, and SB3's
-    # load sets every saved attribute on the model: nothing reads them, and they are not
-    # saved again.
-    REMOVED_SETTINGS = ("bc_filter", "warm_start_steps", "actor_learning_rate_scale")
-
     def __init__(self, *args, bc_weight: float = 0.0, actor_average_tau: float = 0.0, **kwargs):
         self.bc_weight = float(bc_weight)
         if not 0.0 <= float(actor_average_tau) <= 1.0:
@@ -127,9 +121,6 @@ class SACfD(SAC):
         self._actor_average = None  # name -> tensor, like actor.state_dict()
         self._actor_refills = False
         super().__init__(*args, **kwargs)
-
-    def _excluded_save_params(self) -> list:
-        return [*super()._excluded_save_params(), *self.REMOVED_SETTINGS]
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         self._train_steps(gradient_steps, batch_size)

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cathsim_dmc.app.train_schema import AlgoConfig, DemosConfig, TrainerConfig, check_section, with_defaults
 from cathsim_dmc.control.policies import make_policy
 from cathsim_dmc.core import run_files
+from cathsim_dmc.core.settings import check_section, with_defaults
 from cathsim_dmc.learning.rl.checkpoints import (
     CHECKPOINT_DIR,
     FINAL_MODEL,
@@ -30,6 +30,7 @@ from cathsim_dmc.learning.rl.checkpoints import (
     write_policy_file,
 )
 from cathsim_dmc.learning.rl.replay import check_replay_memory, grow_replay_buffer
+from cathsim_dmc.learning.rl.settings import AlgoConfig, DemosConfig, TrainerConfig
 
 log = logging.getLogger("cathsim-train")
 
@@ -136,7 +137,7 @@ def build_sac(env, algo: dict, seed: int, device: str, tensorboard_dir: str | No
 def check_training(algo: dict, trainer: dict) -> None:
     """ValueError naming the setting for an `algo` or `trainer` value training cannot use;
     `train` calls it first, and cathsim-train before it builds an environment. The ranges
-    are the schema's (cathsim_dmc.app.train_schema); keys the dicts lack are not checked."""
+    are cathsim_dmc.learning.rl.settings'; keys the dicts lack are not checked."""
     check_section("algo", AlgoConfig, algo)
     check_section("trainer", TrainerConfig, trainer)
 
@@ -181,7 +182,7 @@ def train(
 
     from cathsim_dmc.learning.rl.sacfd import SACfD
 
-    # Options a Python caller leaves out take the schema's defaults (cathsim_dmc.app.train_schema).
+    # Options a Python caller leaves out take their defaults (cathsim_dmc.learning.rl.settings).
     algo, trainer = with_defaults(AlgoConfig, algo), with_defaults(TrainerConfig, trainer)
     demos = with_defaults(DemosConfig, demos) if demos else None
     check_training(algo, trainer)
@@ -201,6 +202,7 @@ def train(
     tb_dir = str(run_dir / "tensorboard")
     ckpt_dir = run_dir / CHECKPOINT_DIR
     if resume:
+        run_files.check_run_format(run_dir)  # another version's run is refused before anything loads
         last, step, buffer_file = resume_checkpoint(ckpt_dir)
         log.info("resuming from step %d of %d (%s)", step, total, last)
     if trainer.get("normalize_observations"):

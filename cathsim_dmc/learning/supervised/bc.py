@@ -14,7 +14,6 @@ The student acts with the mean, clipped to [-1, 1].
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections import deque
@@ -197,7 +196,7 @@ def save_bc(
     frames: int = 1,
 ) -> Path:
     """bc_policy.pt (weights + shape) and policy.json (how to evaluate it); atomic writes."""
-    from cathsim_dmc.core.run_files import POLICY_FILE, write_atomic
+    from cathsim_dmc.core.run_files import write_atomic, write_policy_file
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -217,7 +216,7 @@ def save_bc(
         "image_options": dict(image_options or {}),
         **(extra or {}),
     }
-    write_atomic(run_dir / POLICY_FILE, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
+    write_policy_file(run_dir, info, indent=2)
     return path
 
 
