@@ -1,16 +1,19 @@
 """The generalisation table: navigators trained on random arches, scored on anatomies they never saw.
 
-    python scripts/generalisation.py train --task bca --seed 0        # cathsim-train +experiment=navigator
+    python scripts/generalisation.py train --task bca --seed 0 1 2    # cathsim-train -m +experiment=navigator
     python scripts/generalisation.py train --task bca --specialist    # the default recipe on type I, for comparison
-    python scripts/generalisation.py evaluate --task bca              # every policy on every anatomy below
+    python scripts/generalisation.py evaluate --task bca --jobs 2     # every policy on every anatomy below
+    python scripts/generalisation.py train --task bca lcca --seed 0 1 2 --launcher submitit_slurm \
+        hydra.launcher.partition=<partition>                          # on a SLURM cluster
     python scripts/generalisation.py report
     python scripts/generalisation.py ship --task bca                  # the seed best on the tuning pool
 
-`train` runs `cathsim-train +experiment=navigator task=<task> seed=<seed>` into
-ROOT/runs/<task>/seed<seed> (resuming it if it was cut short, skipping it when its report
-exists); `--specialist` runs the default recipe on type I into ROOT/runs/<task>/type1.
+`train` runs `cathsim-train -m +experiment=navigator task=<tasks> seed=<seeds>`, each run in
+ROOT/runs/<task>/seed<seed>; `--specialist` runs the default recipe on type I into
+ROOT/runs/<task>/type1. A run with its final report (eval/metrics.json) is skipped, and
+one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,...`).
 
-`evaluate` scores, on the same episodes (episode i seeded 10,000 + i):
+`evaluate` scores, with `cathsim-eval` on the same episodes (episode i seeded 10,000 + i):
 
 - policies: each navigator seed's best.zip and, beside it, its last policy (last.zip);
   the scripted expert; the type I specialist; the shipped navigator (`policy=pretrained`);
@@ -20,18 +23,26 @@ exists); `--specialist` runs the default recipe on type I into ROOT/runs/<task>/
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
   `cathsim-aorta import` and default options.
 
-Each (policy, anatomy) gets a cathsim-eval style report in
-ROOT/scores/<task>/<policy>/<anatomy>/ (metrics.json). A finished one is skipped, so a run
-cut short resumes where it stopped. `report` reads them into the tables of
-docs/training.md#unseen-anatomy: success, SPL, force and episode length on the held-out
-pool (the navigators' median over seeds with each seed's score), success by arch type,
-and success on each shipped aorta and corpus mesh.
+Each (policy, anatomy) gets a cathsim-eval report in ROOT/scores/<task>/<policy>/<anatomy>/
+(metrics.json). A finished one is skipped, so a run cut short resumes where it stopped.
+The rest run as `cathsim-eval -m` sweeps over the policies (and the shipped aortas) that
+share an anatomy's settings; each job's folder moves to its place when the sweep ends.
+
+Both run their sweeps through a Hydra launcher (scripts/sweeps.py): `--launcher joblib`
+(the default) `--jobs` at a time on this machine, `--launcher submitit_slurm` one SLURM job
+each; `hydra.launcher.<key>=<value>` among the arguments passes on to it.
+
+`report` reads the scores into the tables of docs/training.md#unseen-anatomy: success, SPL,
+force and episode length on the held-out pool (the navigators' median over seeds with each
+seed's score), success by arch type, and success on each shipped aorta and corpus mesh.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -39,6 +50,11 @@ import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import sweeps  # noqa: E402
+from sweeps import UsageError  # noqa: E402
+
 SHIPPED = (
     "type1",
     "type1_oblique",
@@ -74,29 +90,54 @@ def _tool(name: str) -> Path:
     return Path(sys.executable).with_name(f"cathsim-{name}")
 
 
-def train(root: Path, task: str, seed: int, specialist: bool, overrides: list) -> Path:
-    folder = root / "runs" / task / ("type1" if specialist else f"seed{seed}")
-    if (folder / "eval" / "metrics.json").is_file():
-        return folder
-    if (folder / "checkpoints" / "last.zip").is_file():
-        _run([_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"])
-        return folder
-    folder.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    (folder / "commit.txt").write_text(commit.stdout.strip() + "\n")
-    recipe = [f"task={task}", "aorta=type1"] if specialist else ["+experiment=navigator", f"task={task}"]
-    _run(
-        [
-            _tool("train"),
-            *recipe,
-            f"seed={seed}",
-            "trainer.progress_bar=false",
-            "trainer.video=false",
-            f"hydra.run.dir={folder}",
-            *overrides,
-        ]
-    )
-    return folder
+def _sweep_dir(root: Path, tool: str) -> Path:
+    """Where a multirun keeps its own files: ROOT/multirun/<time>_<tool>."""
+    return root / "multirun" / f"{datetime.datetime.now():%Y-%m-%d_%H-%M-%S-%f}_{tool}"
+
+
+def run_folder(root: Path, task: str, seed, specialist: bool) -> Path:
+    """ROOT/runs/<task>/seed<seed>, or ROOT/runs/<task>/type1 for the specialist."""
+    return root / "runs" / task / ("type1" if specialist else f"seed{seed}")
+
+
+def train_launches(root: Path, tasks: list, seeds: list, specialist: bool, overrides: list) -> list:
+    """(fixed overrides, sweep, subdir) of the `cathsim-train -m` runs that train what is not
+    finished: the runs cut short resume (a sweep over resume=); the others start, a sweep
+    over task and seed, each job in its run folder (subdir)."""
+    root = root.resolve()
+    fresh, resumed = [], []
+    for task in tasks:
+        for seed in seeds:
+            folder = run_folder(root, task, seed, specialist)
+            if sweeps.finished_report(folder / "eval" / "metrics.json"):
+                print(f"{folder}: finished", flush=True)
+            elif (folder / "checkpoints" / "last.zip").is_file():
+                resumed.append(str(folder))
+            else:
+                fresh.append({"task": task, "seed": seed})
+    found = [([], {"resume": resumed}, "${resume}")] if resumed else []
+    recipe = ["aorta=type1"] if specialist else ["+experiment=navigator"]
+    fixed = [*recipe, "trainer.progress_bar=false", "trainer.video=false", *overrides]
+    subdir = str(run_folder(root, "${task.target}", "${seed}", specialist))
+    return found + [(fixed, block, subdir) for block in sweeps.blocks(fresh)]
+
+
+def train(root: Path, tasks: list, seeds: list, specialist: bool, overrides: list, launcher: list) -> int:
+    """Train the runs of `tasks` x `seeds` that are not finished; a new run's folder gets
+    commit.txt, the commit it started at."""
+    if specialist and len(seeds) > 1:
+        raise UsageError(f"--seed {' '.join(map(str, seeds))}: the specialist is one run per task; give one seed")
+    root, commit, failed = root.resolve(), sweeps.commit(), 0
+    for fixed, sweep, subdir in train_launches(root, tasks, seeds, specialist, overrides):
+        for task in sweep.get("task", []):
+            for seed in sweep["seed"]:
+                folder = run_folder(root, task, seed, specialist)
+                folder.mkdir(parents=True, exist_ok=True)
+                (folder / "commit.txt").write_text(commit + "\n")
+        failed += (
+            sweeps.launch(sweeps.sweep_command("train", fixed, sweep, _sweep_dir(root, "train"), subdir, launcher)) != 0
+        )
+    return 1 if failed else 0
 
 
 def import_corpus(root: Path) -> dict:
@@ -178,6 +219,107 @@ PRESET_CARD = {
 }
 
 
+def _pool(params: dict) -> list:
+    return ["aorta=random", *[f"aorta.params.{k}={v}".replace(" ", "") for k, v in params.items()]]
+
+
+def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_anatomies: list | None = None) -> dict:
+    """anatomy name -> (its cathsim-eval overrides, the key of them a sweep over anatomies
+    varies, or None)."""
+    anatomies = {
+        HELDOUT_NAME: ([*_pool(HELDOUT), f"episodes={episodes}"], None),
+        TUNING_NAME: ([*_pool(TUNING), f"episodes={TUNING['pool_size']}"], None),
+        NOISY_NAME: ([*_pool(HELDOUT), *[f"obs.{k}={v}" for k, v in NOISE.items()], f"episodes={episodes}"], None),
+    }
+    anatomies.update({name: ([f"aorta={name}", f"episodes={shipped_episodes}"], "aorta") for name in SHIPPED})
+    if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
+        for name, folder in import_corpus(root).items():
+            # an asset folder as cathsim-eval's aorta=DIR becomes; the label only names Hydra's folders
+            overrides = ["aorta=folder", f"aorta.name={folder.resolve()}", "aorta.label=corpus"]
+            anatomies[name] = ([*overrides, f"episodes={shipped_episodes}"], "aorta.name")
+    if only_anatomies:
+        anatomies = {k: v for k, v in anatomies.items() if k in only_anatomies}
+    return anatomies
+
+
+def anatomy_of(overrides: dict) -> str:
+    """The anatomy a cathsim-eval job of `evaluate` scored, from its overrides."""
+    if overrides.get("aorta") == "random":
+        if int(overrides["aorta.params.pool_seed"]) == TUNING["pool_seed"]:
+            return TUNING_NAME
+        return NOISY_NAME if "obs.tracking_noise_m" in overrides else HELDOUT_NAME
+    if overrides.get("aorta") == "folder":
+        return f"corpus_{Path(overrides['aorta.name']).name}"
+    return overrides["aorta"]
+
+
+def evaluation_jobs(
+    root: Path,
+    task: str,
+    episodes: int,
+    shipped_episodes: int,
+    only: list | None,
+    unfinished: bool = False,
+    only_anatomies: list | None = None,
+) -> list:
+    """(fixed overrides, sweep) of the `cathsim-eval -m` runs that score each (policy,
+    anatomy) without its report yet: a sweep over the policies, and over the shipped aortas
+    or the corpus meshes, that share the rest."""
+    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
+    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
+
+    anatomies = anatomy_overrides(root, episodes, shipped_episodes, only_anatomies)
+    groups: dict = {}
+    for policy_name, source in policies(root, task, unfinished).items():
+        if only and policy_name not in only:
+            continue
+        policy = make_policy(source, seed=0, task=task)
+        checkpoint = isinstance(policy, CheckpointPolicy)
+        for anatomy, (overrides, varied) in anatomies.items():
+            if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
+                continue  # the tuning pool chooses the seed to ship
+            if anatomy == NOISY_NAME and not (
+                checkpoint and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled
+            ):
+                continue  # the noise is the roadmap's: the expert and the specialist do not read it
+            if sweeps.finished_report(root / "scores" / task / policy_name / anatomy / "metrics.json"):
+                continue
+            point = {"policy": source}
+            fixed = [o for o in overrides if o.split("=", 1)[0] != varied]
+            if varied:
+                point[varied] = next(o.split("=", 1)[1] for o in overrides if o.split("=", 1)[0] == varied)
+            fixed += [
+                f"task={task}",
+                f"seed={EVAL_SEED}",
+                "video=false",
+                # A trained agent brings its own observations (named where their noise is set); the
+                # expert's do not change what it does.
+                *([f"obs={policy.obs_preset}"] if anatomy == NOISY_NAME else [] if checkpoint else ["obs=roadmap"]),
+            ]
+            groups.setdefault((tuple(fixed), tuple(point)), []).append(point)
+    return [(list(fixed), block) for (fixed, _), points in groups.items() for block in sweeps.blocks(points)]
+
+
+def file_scores(root: Path, task: str, sweep_dir: Path, names: dict) -> int:
+    """Move each finished job of the multirun in `sweep_dir` to ROOT/scores/<task>/<policy>/<anatomy>
+    (`names`: what cathsim-eval's policy= was -> the policy's name); the sweep's own folder
+    goes. Returns how many jobs did not finish."""
+    unfinished = 0
+    for job in sorted(p for p in sweep_dir.iterdir() if p.is_dir()) if sweep_dir.is_dir() else []:
+        overrides = sweeps.job_overrides(job)
+        if "policy" not in overrides:
+            continue
+        if not sweeps.finished_report(job / "metrics.json"):
+            unfinished += 1
+            continue
+        out = root / "scores" / task / names[overrides["policy"]] / anatomy_of(overrides)
+        shutil.rmtree(out, ignore_errors=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(str(job), str(out))
+    shutil.rmtree(sweep_dir, ignore_errors=True)
+    return unfinished
+
+
 def evaluate(
     root: Path,
     task: str,
@@ -186,49 +328,18 @@ def evaluate(
     only: list | None,
     unfinished: bool = False,
     only_anatomies: list | None = None,
-) -> None:
-    from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
-    from cathsim_dmc.evaluation.rollouts import evaluate_policy
-    from cathsim_dmc.suite.gym import CathSimEnv
-    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
-
-    anatomies = {
-        HELDOUT_NAME: ("random", HELDOUT, episodes),
-        TUNING_NAME: ("random", TUNING, TUNING["pool_size"]),
-        NOISY_NAME: ("random", HELDOUT, episodes),
-    }
-    anatomies.update({name: (name, None, shipped_episodes) for name in SHIPPED})
-    if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
-        anatomies.update({name: (str(folder), None, shipped_episodes) for name, folder in import_corpus(root).items()})
-    if only_anatomies:
-        anatomies = {k: v for k, v in anatomies.items() if k in only_anatomies}
-    for policy_name, source in policies(root, task, unfinished).items():
-        if only and policy_name not in only:
-            continue
-        policy = make_policy(source, seed=0, task=task)
-        for anatomy, (aorta, params, count) in anatomies.items():
-            if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
-                continue  # the tuning pool chooses the seed to ship
-            if anatomy == NOISY_NAME and not (
-                isinstance(policy, CheckpointPolicy) and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled
-            ):
-                continue  # the noise is the roadmap's: the expert and the specialist do not read it
-            out = root / "scores" / task / policy_name / anatomy
-            if (out / "metrics.json").is_file():
-                continue
-            kwargs = dict(task=task, aorta=aorta, obs="roadmap")
-            if params:
-                kwargs["aorta_params"] = params
-            if isinstance(policy, CheckpointPolicy):
-                kwargs.update(obs=policy.obs_preset, **policy.image_options, **policy.env_options)
-                if anatomy == NOISY_NAME:
-                    kwargs.update(NOISE)
-            print(f"{task} {policy_name} {anatomy}: {count} episodes", flush=True)
-            env = CathSimEnv(**kwargs)
-            try:
-                evaluate_policy(env, policy, policy_name, count, EVAL_SEED, out, video=False, show_progress=False)
-            finally:
-                env.close()
+    launcher: list = (),
+) -> int:
+    root = root.resolve()
+    names = {source: name for name, source in policies(root, task, unfinished).items()}
+    failed = 0
+    for fixed, sweep in evaluation_jobs(root, task, episodes, shipped_episodes, only, unfinished, only_anatomies):
+        sweep_dir = _sweep_dir(root, "eval")
+        status = sweeps.launch(
+            sweeps.sweep_command("eval", fixed, sweep, sweep_dir, "${hydra.job.num}", list(launcher))
+        )
+        failed += file_scores(root, task, sweep_dir, names) + (status != 0)
+    return 1 if failed else 0
 
 
 # -- report ------------------------------------------------------------------------------
@@ -480,10 +591,12 @@ def main(argv=None) -> int:
     parser.add_argument("--root", type=Path, default=Path("outputs/generalisation"))
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("train")
-    run.add_argument("--task", choices=TARGETS, default="bca")
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--task", nargs="+", choices=TARGETS, default=["bca"])
+    run.add_argument("--seed", nargs="+", type=int, default=[0])
     run.add_argument("--specialist", action="store_true", help="the default recipe on type I instead")
-    run.add_argument("overrides", nargs="*", help="more cathsim-train overrides (key=value)")
+    run.add_argument(
+        "overrides", nargs="*", help="more cathsim-train overrides (key=value), and hydra.launcher.<key>=<value>"
+    )
     ev = sub.add_parser("evaluate")
     ev.add_argument("--task", choices=TARGETS, default="bca")
     ev.add_argument("--episodes", type=int, default=HELDOUT["pool_size"], help="episodes on the held-out pool")
@@ -491,16 +604,44 @@ def main(argv=None) -> int:
     ev.add_argument("--only", nargs="*", help="score only these policies (names as in ROOT/scores)")
     ev.add_argument("--unfinished", action="store_true", help="also score runs without their final report")
     ev.add_argument("--anatomies", nargs="*", help="score only these anatomies (heldout, tuning, type1, ...)")
+    ev.add_argument("overrides", nargs="*", help="launcher options: hydra.launcher.<key>=<value>")
+    for command in (run, ev):
+        sweeps.add_launcher_options(command)
     rep = sub.add_parser("report")
     rep.add_argument("--out", type=Path, default=None)
     shp = sub.add_parser("ship", help="export the seed best on the tuning pool as policy=pretrained")
     shp.add_argument("--task", choices=TARGETS, default="bca")
     args = parser.parse_args(argv)
-    if args.command == "train":
-        train(args.root, args.task, args.seed, args.specialist, args.overrides)
-    elif args.command == "evaluate":
-        evaluate(args.root, args.task, args.episodes, args.shipped_episodes, args.only, args.unfinished, args.anatomies)
-    elif args.command == "ship":
+    try:
+        if args.command in ("train", "evaluate"):
+            # a key=value after a list option (--seed, --only, --anatomies) belongs with the overrides
+            lists = [getattr(args, k) or [] for k in ("only", "anatomies") if hasattr(args, k)]
+            given = [o for values in lists for o in values if "=" in str(o)] + args.overrides
+            for values in lists:
+                values[:] = [o for o in values if "=" not in str(o)]
+            extra = [o for o in given if o.startswith("hydra.launcher.")]
+            launcher = sweeps.launcher_overrides(args.launcher, args.jobs, extra)
+            if args.command == "evaluate" and len(extra) < len(given):
+                bad = next(o for o in given if not o.startswith("hydra.launcher."))
+                raise UsageError(f"{bad}: evaluate takes launcher options only (hydra.launcher.<key>=<value>)")
+        if args.command == "train":
+            tool = [o for o in args.overrides if not o.startswith("hydra.launcher.")]
+            return train(args.root, args.task, args.seed, args.specialist, tool, launcher)
+    except UsageError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if args.command == "evaluate":
+        return evaluate(
+            args.root,
+            args.task,
+            args.episodes,
+            args.shipped_episodes,
+            args.only,
+            args.unfinished,
+            args.anatomies,
+            launcher,
+        )
+    if args.command == "ship":
         ship(args.root, args.task)
     else:
         report(args.root, args.out)

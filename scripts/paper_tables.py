@@ -1,25 +1,31 @@
-"""The CathSim paper's experiments, re-run: its tables and learning-curve figure, resumably.
+"""The CathSim paper's experiments, re-run: its tables and learning-curve figure.
 
-    python scripts/paper_tables.py plan                  # every cell: state, estimated and measured cost
-    python scripts/paper_tables.py run --jobs 2          # run what is not finished (a killed run resumes)
+    python scripts/paper_tables.py plan                  # every cell: state and cost; the multiruns `run` launches
+    python scripts/paper_tables.py run --jobs 2          # the unfinished cells, as Hydra multiruns on this machine
     python scripts/paper_tables.py run --only main/enn   # cells whose name starts with this
-    python scripts/paper_tables.py run --deadline 17:30  # start only cells estimated to end by then
+    python scripts/paper_tables.py run --launcher submitit_slurm hydra.launcher.partition=<partition>   # on SLURM
     python scripts/paper_tables.py report --out docs/paper.md   # from ROOT and the record
     python scripts/paper_tables.py reselect              # best.zip chosen again where a tie was never broken
 
-A cell is one tool run (cathsim-train, -collect, -bc or -force) in ROOT/<cell name>. It is
-finished when ROOT/<cell>/cell.json exists (written when the tool exits cleanly, with the
-commit, the command and the wall time) or when the record holds it, and finished cells are
-skipped. The record (--record; for the full budget experiments/paper_results.json, in the
+A cell is one tool run (cathsim-train, -collect, -bc or -force) in ROOT/<cell name>. `run`
+hands the cells to Hydra: the cells of one tool whose overrides differ only in the task,
+the observation preset or the seed are one `-m` sweep, and a Hydra launcher runs its jobs
+(scripts/sweeps.py): `--launcher joblib` (the default) `--jobs` at a time on this machine,
+`--launcher submitit_slurm` one SLURM job each. Sweeps run one after the other, in the
+plan's order, each as soon as the cells it needs have finished; one `run` at a time per ROOT.
+
+A cell is finished when the tool wrote its final file (a training's or a student's
+eval/metrics.json, the force report, a dataset's manifest with every episode): `run` then
+writes ROOT/<cell>/cell.json (the commit, the command, the job's wall time) and skips the
+cell. The record (--record; for the full budget experiments/paper_results.json, in the
 repository, so the results outlive the machine that ran them) keeps each finished cell's
 numbers: its final report's metrics, its evaluation curve and its cost. Its files do not
 outlive the machine: when a cell reads a finished cell's files (a dataset, the ENN agent's
 checkpoints) and they are not in ROOT, that cell is run again first, and its record entry is
-replaced by the new measurement. `report` reads a
-cell from ROOT when it is there and from the record otherwise; `--record new.json` starts
-the experiments afresh. A training cell cut short resumes from its last checkpoint; a
-collection continues its dataset; a cloning or force cell starts again. Two `run`
-processes (or --jobs 2) share the work: a cell being run holds ROOT/<cell>/running.
+replaced by the new measurement. `report` reads a cell from ROOT when it is there and from
+the record otherwise; `--record new.json` starts the experiments afresh. A training cell cut
+short resumes from its last checkpoint (`cathsim-train resume=`); a collection continues its
+dataset; a cloning or force cell starts again.
 
 The cells:
   main/<obs>/<target>/seed<s>    the main table: the project's recipe on type I, 5 modalities x
@@ -43,20 +49,20 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import re
 import shutil
 import statistics
-import subprocess
 import sys
-import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import sweeps  # noqa: E402
+from sweeps import UsageError  # noqa: E402
 
 TARGETS = ("bca", "lcca")
 SEEDS = (0, 1, 2)
@@ -128,26 +134,30 @@ TINY = {  # --budget tiny: every cell on a few steps and short episodes
 }
 CELL_FILE = "cell.json"
 ATTEMPTS_FILE = "attempts.jsonl"
-LOCK_FILE = "running"
 FULL_RECORD = ROOT / "experiments" / "paper_results.json"
-_RECORD_LOCK = threading.Lock()
+# The keys a cell's name is made of, and what names their value in a job's config: a sweep
+# over them puts each job in its cell's folder (hydra.sweep.subdir).
+SWEPT = {"obs": "${obs.name}", "task": "${task.target}", "seed": "${seed}"}
 
 
-class UsageError(Exception):
-    pass
-
-
-@dataclass
+@dataclass(eq=False)  # a cell is itself: `in` compares identity
 class Cell:
-    name: str  # its folder under ROOT
+    pattern: str  # its folder under ROOT, with {obs}, {task}, {seed} for the values in `sweep`
     tool: str  # train | collect | bc | force
-    args: Callable[[Path], list]  # the tool's Hydra overrides, given ROOT
+    # The tool's other Hydra overrides, given ROOT; {task} (and the others) stand for the
+    # cell's values, so that one sweep covers the cells that differ only in them.
+    args: Callable[[Path], list]
     minutes: float  # estimated wall time on the 2-core machine beside one other job
+    sweep: dict = field(default_factory=dict)  # obs, task, seed -> this cell's value
     needs: tuple = ()  # names of cells to finish first
     demos: bool = True  # a training cell that records demonstrations
     # The needs whose files it reads, given the plan (default: all of them). A need that
     # finished on another machine (only the record holds it) is run again here first.
     reads: Callable[["Plan"], tuple] | None = None
+
+    @property
+    def name(self) -> str:
+        return self.pattern.format(**self.sweep)
 
     def inputs(self, plan: "Plan") -> tuple:
         return self.needs if self.reads is None else self.reads(plan)
@@ -197,16 +207,8 @@ def _fixed(*args):
     return lambda root: list(args)
 
 
-def _train_args(obs: str, target: str, seed: int, extra=()):
-    return _fixed(
-        f"task={target}",
-        "aorta=type1",
-        f"obs={obs}",
-        f"seed={seed}",
-        *extra,
-        "trainer.progress_bar=false",
-        "trainer.video=false",
-    )
+def _train_args(extra=()):
+    return _fixed("aorta=type1", *extra, "trainer.progress_bar=false", "trainer.video=false")
 
 
 # Wall minutes of a main cell, two at a time: the medians measured 2026-11-27 to 2026-11-29
@@ -224,26 +226,25 @@ MAIN_MINUTES = {
 def main_cell(obs: str, target: str, seed: int) -> Cell:
     steps = MAIN_STEPS[obs]
     return Cell(
-        f"main/{obs}/{target}/seed{seed}",
+        "main/{obs}/{task}/seed{seed}",
         "train",
         _train_args(
-            obs,
-            target,
-            seed,
             [
                 f"trainer.total_timesteps={steps}",
                 "trainer.eval_every=1000",
                 "trainer.eval_episodes=10",
                 "trainer.eval_at_start=true",
                 f"trainer.final_eval_episodes={FINAL_EPISODES}",
-            ],
+            ]
         ),
         minutes=MAIN_MINUTES[obs][target],
+        sweep={"obs": obs, "task": target, "seed": seed},
     )
 
 
 def protocol_cell(obs: str, target: str) -> Cell:
     extra = [
+        "seed=0",
         *PROTOCOL[obs],
         "reward=euclidean",
         "demos=none",
@@ -255,10 +256,11 @@ def protocol_cell(obs: str, target: str) -> Cell:
         "trainer.save_replay_buffer=true",
     ]
     return Cell(
-        f"protocol/{obs}/{target}/seed0",
+        "protocol/{obs}/{task}/seed0",
         "train",
-        _train_args(obs, target, 0, extra),
+        _train_args(extra),
         minutes=PROTOCOL_MINUTES[obs],
+        sweep={"obs": obs, "task": target},
         demos=False,
     )
 
@@ -284,12 +286,11 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
             for target in TARGETS:
                 add(main_cell(obs, target, seed))
 
-    def dataset(name, target, policy, *extra):  # 300 episodes of a scripted policy
+    def dataset(kind, target, policy, *extra):  # 300 episodes of a scripted policy
         return Cell(
-            f"imitation/data/{name}",
+            f"imitation/data/{kind}_{{task}}",
             "collect",
             _fixed(
-                f"task={target}",
                 "aorta=type1",
                 f"policy={policy}",
                 f"episodes={EXPERT_EPISODES}",
@@ -298,16 +299,16 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                 "progress_bar=false",
             ),
             minutes=10,
+            sweep={"task": target},
         )
 
-    def student(name, target, *extra):  # the single-frame image student of imitation/data/<name>
+    def student(kind, target, *extra):  # the single-frame image student of imitation/data/<kind>_<target>
         return Cell(
-            f"imitation/bc/{name}",
+            f"imitation/bc/{kind}_{{task}}",
             "bc",
             _fixed(
-                f"task={target}",
                 "aorta=type1",
-                f"data={data(name)}",
+                f"data={data(kind + '_{task}')}",
                 *extra,
                 f"bc.epochs={BC_EPOCHS}",
                 f"eval_episodes={FINAL_EPISODES}",
@@ -316,32 +317,32 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                 "progress_bar=false",
             ),
             minutes=BC_MINUTES,
-            needs=(f"imitation/data/{name}",),
+            sweep={"task": target},
+            needs=(f"imitation/data/{kind}_{target}",),
         )
 
     for target in TARGETS:
-        add(dataset(f"expert_{target}", target, "expert"))
-        add(student(f"expert_{target}", target))
+        add(dataset("expert", target, "expert"))
+        add(student("expert", target))
     # Why the single frame falls short (docs/paper.md#imitation). Students with every start on
     # one side of the view's mirror plane (rotation pi to pi + 0.3 rad, the default's spread),
     # where mirrored starts give identical images; then students of the steady expert, which
     # makes no turn on straight stretches, from the default starts.
     for target in TARGETS:
-        add(dataset(f"expert_onesided_{target}", target, "expert", *ONE_SIDED_START))
-        add(student(f"expert_onesided_{target}", target, *ONE_SIDED_START))
+        add(dataset("expert_onesided", target, "expert", *ONE_SIDED_START))
+        add(student("expert_onesided", target, *ONE_SIDED_START))
     for target in TARGETS:
-        add(dataset(f"steady_{target}", target, "expert_steady"))
-        add(student(f"steady_{target}", target))
+        add(dataset("steady", target, "expert_steady"))
+        add(student("steady", target))
     # The ENN agent's dataset as soon as its seeds finish: it needs their checkpoints, which
     # only the machine that trained them has.
     for target in TARGETS:
         enn_seeds = tuple(f"main/enn/{target}/seed{s}" for s in SEEDS)
         add(
             Cell(
-                f"imitation/data/enn_{target}",
+                "imitation/data/enn_{task}",
                 "collect",
                 lambda root, t=target: [
-                    f"task={t}",
                     "aorta=type1",
                     f"policy={best_enn_run(plan, t)}",
                     f"episodes={EXPERT_EPISODES}",
@@ -349,11 +350,12 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                     "progress_bar=false",
                 ],
                 minutes=25,
+                sweep={"task": target},
                 needs=enn_seeds,
                 reads=lambda plan, t=target: (str(best_enn_run(plan, t).relative_to(plan.root)),),
             )
         )
-        add(student(f"enn_{target}", target))
+        add(student("enn", target))
     for obs in ("pixels_mask", "pixels", "internal_pixels"):
         for seed in SEEDS:
             for target in TARGETS:
@@ -361,10 +363,9 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
     for target in TARGETS:
         add(
             Cell(
-                f"imitation/data/expert_more_{target}",
+                "imitation/data/expert_more_{task}",
                 "collect",
                 _fixed(
-                    f"task={target}",
                     "aorta=type1",
                     "policy=expert",
                     f"episodes={MORE_EXPERT_EPISODES}",
@@ -372,6 +373,7 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
                     "progress_bar=false",
                 ),
                 minutes=20,
+                sweep={"task": target},
             )
         )
     every = [f"expert_{t}" for t in TARGETS] + [f"expert_more_{t}" for t in TARGETS]
@@ -410,135 +412,196 @@ def build_plan(root: Path, budget: str = "full", record: Path | None = None) -> 
 
 
 # -- running -------------------------------------------------------------------------------
-def _commit() -> str:
-    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    return out.stdout.strip() or "unknown"
-
-
-def _tool(name: str) -> str:
-    return str(Path(sys.executable).with_name(f"cathsim-{name}"))
-
-
-def command(plan: Plan, cell: Cell) -> list:
-    """The command that runs `cell` now: a training cell with a checkpoint resumes from it."""
-    folder = plan.folder(cell)
-    if cell.tool == "train" and (folder / "checkpoints" / "last.zip").is_file():
-        return [_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
-    args = cell.args(plan.root)
-    if plan.budget == "tiny":
-        args = _override(args, TINY[cell.tool] + (TINY["train_demos"] if cell.tool == "train" and cell.demos else []))
-    if cell.tool == "collect":
-        args.append(f"out={folder}")
-    return [_tool(cell.tool), *args, f"hydra.run.dir={folder}"]
-
-
 def _override(args: list, changes: list) -> list:
     """`args` with each key=value of `changes` replacing the same key's (Hydra refuses a key twice)."""
     keys = {c.split("=", 1)[0] for c in changes}
     return [a for a in args if a.split("=", 1)[0] not in keys] + list(changes)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
+def templates(plan: Plan, cell: Cell) -> list:
+    """The cell's overrides besides its swept keys, {task} and the others not yet filled in."""
+    args = cell.args(plan.root)
+    if plan.budget == "tiny":
+        args = _override(args, TINY[cell.tool] + (TINY["train_demos"] if cell.tool == "train" and cell.demos else []))
+    return args
+
+
+def _resumes(plan: Plan, cell: Cell) -> bool:
+    return cell.tool == "train" and (plan.folder(cell) / "checkpoints" / "last.zip").is_file()
+
+
+def command(plan: Plan, cell: Cell) -> list:
+    """The command that runs `cell` alone, now: a training cell with a checkpoint resumes from it."""
+    folder = plan.folder(cell)
+    if _resumes(plan, cell):
+        return [sweeps.tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
+    args = [a.format(**cell.sweep) for a in templates(plan, cell)]
+    return [sweeps.tool(cell.tool), *args, *[f"{k}={v}" for k, v in cell.sweep.items()], f"hydra.run.dir={folder}"]
+
+
+@dataclass
+class Launch:
+    """One multirun: `tool` with the `fixed` overrides, swept over `sweep` (key -> values), each
+    job in the folder `subdir` names (absolute, with interpolations); the cells it runs."""
+
+    tool: str
+    fixed: list
+    sweep: dict
+    subdir: str
+    cells: list
+
+    def command(self, sweep_dir: Path, launcher: list) -> list:
+        return sweeps.sweep_command(self.tool, self.fixed, self.sweep, sweep_dir, self.subdir, launcher)
+
+    def minutes(self) -> float:
+        return sum(c.minutes for c in self.cells)
+
+
+def launches(plan: Plan, cells: list) -> list:
+    """The multiruns that run `cells`, in the plan's order: the training cells with a
+    checkpoint resume together (`cathsim-train -m resume=...`); the others are grouped by tool
+    and overrides, and each group swept over the keys its names differ in."""
+    order = {c.name: i for i, c in enumerate(plan.cells)}
+    found = []
+    resumed = [c for c in cells if _resumes(plan, c)]
+    if resumed:
+        folders = [str(plan.folder(c).resolve()) for c in resumed]
+        found.append(Launch("train", [], {"resume": folders}, "${resume}", resumed))
+    groups: dict = {}
+    for cell in cells:
+        if cell not in resumed:
+            key = (cell.tool, cell.pattern, tuple(templates(plan, cell)), tuple(cell.sweep))
+            groups.setdefault(key, []).append(cell)
+    for (tool, pattern, args, keys), members in groups.items():
+        filled = {k: SWEPT[k] for k in keys}
+        by_values = {tuple(c.sweep.values()): c for c in members}
+        for block in sweeps.blocks([c.sweep for c in members]):
+            chosen = [c for values, c in by_values.items() if all(v in block[k] for k, v in zip(keys, values))]
+            subdir = str(plan.root.resolve() / pattern.format(**filled))
+            found.append(Launch(tool, [a.format(**filled) for a in args], block, subdir, chosen))
+    return sorted(found, key=lambda job: min(order[c.name] for c in job.cells))
+
+
+def final_file(plan: Plan, cell: Cell) -> Path | None:
+    """The file a tool writes last, once the cell's run has finished: the final report of a
+    training or a student (not one a Ctrl-C left partial), the force report, the manifest of a
+    dataset with all its episodes."""
+    folder = plan.folder(cell)
+    if cell.tool in ("train", "bc"):
+        path = folder / "eval" / "metrics.json"
+        return path if sweeps.finished_report(path) else None
+    if cell.tool == "force":
+        path = folder / "force.json"
+        return path if path.is_file() else None
+    path = folder / "manifest.json"
+    if not path.is_file():
+        return None
+    wanted = next(int(a.split("=", 1)[1]) for a in templates(plan, cell) if a.startswith("episodes="))
+    return path if json.loads(path.read_text())["episodes"] >= wanted else None
+
+
+def _attempts(folder: Path) -> list:
+    path = folder / ATTEMPTS_FILE
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+
+
+def record_finished(plan: Plan, cell: Cell) -> bool:
+    """Whether the cell has finished on this machine; the first time its tool's final file is
+    seen, cell.json (the commit and command of its last attempt, the job's wall time) and the
+    record get it."""
+    if plan.here(cell.name):
         return True
+    final = final_file(plan, cell)
+    if final is None:
+        return False
+    folder = plan.folder(cell)
+    attempts = _attempts(folder)
+    last = attempts[-1] if attempts else {"command": command(plan, cell), "commit": sweeps.commit()}
+    seconds = sweeps.job_seconds(folder, final) or 0.0
+    info = {
+        "cell": cell.name,
+        "tool": cell.tool,
+        "command": " ".join([Path(last["command"][0]).name, *last["command"][1:]]),
+        "commit": last["commit"],
+        "budget": plan.budget,
+        "seconds": round(seconds, 1),
+        "attempts": max(1, len(attempts)),
+        "finished": _time(final.stat().st_mtime),
+    }
+    (folder / CELL_FILE).write_text(json.dumps(info, indent=1))
+    save_record(plan, cell.name)
+    print(f"[{cell.name}] finished in {seconds / 60:.1f} min", flush=True)
     return True
 
 
-def _boot_id() -> str:
-    """This boot's id (Linux): a lock from before a restart is stale even if its pid is in use again."""
-    try:
-        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-    except OSError:
-        return ""
+def _time(stamp: float | None = None) -> str:
+    moment = datetime.datetime.fromtimestamp(stamp) if stamp is not None else datetime.datetime.now()
+    return moment.isoformat(timespec="seconds")
 
 
-def _held(lock: Path) -> bool:
-    """Whether the cell's lock belongs to a process running now (its pid alive, on this boot)."""
-    try:
-        pid, _, boot = lock.read_text().strip().partition(" ")
-        pid = int(pid or 0)
-    except (OSError, ValueError):
-        return False
-    return bool(pid) and boot == _boot_id() and _alive(pid)
-
-
-def _claim(folder: Path) -> bool:
-    """Take the cell's lock; a lock whose process has died, or is from an earlier boot, is taken over."""
-    folder.mkdir(parents=True, exist_ok=True)
-    lock = folder / LOCK_FILE
-    for _ in range(2):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            if _held(lock):
-                return False
-            lock.unlink(missing_ok=True)
-            continue
-        os.write(fd, f"{os.getpid()} {_boot_id()}".encode())
-        os.close(fd)
-        return True
-    return False
-
-
-def _run_tool(name: str, folder: Path, cmd: list, **attempt) -> tuple:
-    """Run one tool command for a cell, its output appended to tool.log and the attempt to
-    attempts.jsonl; (exit status, the commit it started at, wall seconds)."""
-    with (folder / ATTEMPTS_FILE).open("a") as f:
-        f.write(json.dumps({"started": _now(), "command": cmd, **attempt}) + "\n")
-    print(f"[{name}] {' '.join(cmd)}", flush=True)
-    commit, t0 = _commit(), time.time()  # the code the tool starts with (a checkout may move on meanwhile)
-    with (folder / "tool.log").open("a") as log:
-        result = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-    seconds = time.time() - t0
-    if result.returncode != 0:
-        print(
-            f"[{name}] failed (exit {result.returncode}) after {seconds:.0f} s: see {folder / 'tool.log'}", flush=True
-        )
-    return result.returncode, commit, seconds
-
-
-def run_cell(plan: Plan, cell: Cell) -> bool:
-    """Run one cell to its end; True when it finished."""
+def prepare(plan: Plan, cell: Cell, commit: str, **attempt) -> None:
+    """Before a cell's job: a cloning or force cell starts again (what a killed attempt left
+    goes), and the attempt is appended to attempts.jsonl."""
     folder = plan.folder(cell)
-    if not _claim(folder):
-        return False
-    try:
-        if cell.tool in ("bc", "force"):  # these start again: clear what a killed attempt left
-            for item in folder.iterdir():
-                if item.name != LOCK_FILE:
-                    shutil.rmtree(item) if item.is_dir() else item.unlink()
-        cmd = command(plan, cell)
-        returncode, commit, seconds = _run_tool(cell.name, folder, cmd)
-        if returncode != 0:
-            return False
-        count = len((folder / ATTEMPTS_FILE).read_text().splitlines())
-        (folder / CELL_FILE).write_text(
-            json.dumps(
-                {
-                    "cell": cell.name,
-                    "tool": cell.tool,
-                    "command": " ".join([Path(cmd[0]).name, *cmd[1:]]),
-                    "commit": commit,
-                    "budget": plan.budget,
-                    "seconds": round(seconds, 1),
-                    "attempts": count,
-                    "finished": _now(),
-                },
-                indent=1,
-            )
-        )
-        save_record(plan, cell.name)
-        print(f"[{cell.name}] finished in {seconds / 60:.1f} min", flush=True)
-        return True
-    finally:
-        (folder / LOCK_FILE).unlink(missing_ok=True)
+    if cell.tool in ("bc", "force") and folder.is_dir():
+        for item in folder.iterdir():
+            shutil.rmtree(item) if item.is_dir() else item.unlink()
+    folder.mkdir(parents=True, exist_ok=True)
+    with (folder / ATTEMPTS_FILE).open("a") as f:
+        f.write(json.dumps({"started": _time(), "command": command(plan, cell), "commit": commit, **attempt}) + "\n")
 
 
-def reselect(plan: Plan, only: list | None) -> int:
+def _sweep_dir(plan: Plan, tool: str) -> Path:
+    """Where a multirun keeps its own files (multirun.yaml): ROOT/multirun/<time>_<tool>."""
+    return plan.root.resolve() / "multirun" / f"{datetime.datetime.now():%Y-%m-%d_%H-%M-%S-%f}_{tool}"
+
+
+def ready(plan: Plan, chosen: list, failed: set = frozenset(), say=print) -> list:
+    """The cells `run` can launch now: each unfinished cell of `chosen` whose needs are done
+    and whose inputs are here, or else the inputs that finished on another machine (only the
+    record holds them), to be run again here first."""
+    found = []
+    for cell in chosen:
+        if plan.done(cell) or cell.name in failed:
+            continue
+        if not all(plan.done(plan.by_name(n)) for n in cell.needs):
+            continue
+        missing = [plan.by_name(n) for n in cell.inputs(plan) if not plan.here(n)]
+        for pick in missing or [cell]:
+            if pick.name not in failed and pick not in found:
+                if pick is not cell:
+                    say(f"[{pick.name}] run again on this machine: {cell.name} reads its files")
+                found.append(pick)
+    return found
+
+
+def run(plan: Plan, only: list | None, launcher: list) -> int:
+    """Run every unfinished cell (matching `only`) whose needs are met, one multirun at a
+    time: the first in the plan's order of those that can start, until none can."""
+    chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
+    for cell in plan.cells:  # finished while no `run` was there to see it
+        record_finished(plan, cell)
+    failed: set = set()
+    while cells := ready(plan, chosen, failed):
+        job = launches(plan, cells)[0]
+        commit = sweeps.commit()  # the code the tools start with (a checkout may move on meanwhile)
+        for cell in job.cells:
+            prepare(plan, cell, commit)
+        sweeps.launch(job.command(_sweep_dir(plan, job.tool), launcher))
+        for cell in job.cells:
+            if not record_finished(plan, cell):
+                failed.add(cell.name)
+                print(f"[{cell.name}] not finished: see {plan.folder(cell)}", flush=True)
+    for cell in chosen:
+        if plan.done(cell) or cell.name in failed:
+            continue
+        needed = [n for n in cell.needs if not plan.done(plan.by_name(n))]
+        needed += [f"{n} (on this machine)" for n in (() if needed else cell.inputs(plan)) if not plan.here(n)]
+        print(f"[{cell.name}] waiting for {', '.join(needed)}")
+    return 1 if failed else 0
+
+
+def reselect(plan: Plan, only: list | None, launcher: list) -> int:
     """Choose best.zip again, and score it again, in each finished training cell whose tied
     periodic evaluations were never broken on more episodes (cells finished before
     trainer.tie_break_episodes existed). The training is not repeated: `cathsim-train
@@ -546,133 +609,51 @@ def reselect(plan: Plan, only: list | None) -> int:
     and cost, and gains `selected` (commit, wall seconds, date)."""
     from cathsim_dmc.learning.rl.callbacks import has_unbroken_tie
 
+    cells = [
+        c
+        for c in plan.cells
+        if c.tool == "train"
+        and (not only or any(c.name.startswith(o) for o in only))
+        and plan.here(c.name)
+        and has_unbroken_tie(plan.folder(c))
+    ]
+    if not cells:
+        print("no finished training cell has an unbroken tie")
+        return 0
+    commit = sweeps.commit()
+    for cell in cells:
+        prepare(plan, cell, commit, reselect=True)
+    job = Launch("train", [], {"resume": [str(plan.folder(c).resolve()) for c in cells]}, "${resume}", cells)
+    sweeps.launch(job.command(_sweep_dir(plan, "train"), launcher))
     failed = 0
-    for cell in plan.cells:
+    for cell in cells:
         folder = plan.folder(cell)
-        if (
-            cell.tool != "train"
-            or (only and not any(cell.name.startswith(o) for o in only))
-            or not (folder / CELL_FILE).is_file()
-            or not has_unbroken_tie(folder)
-        ):
-            continue
-        if not _claim(folder):
-            print(f"[{cell.name}] held by another process", flush=True)
+        report = folder / "eval" / "metrics.json"
+        if has_unbroken_tie(folder) or not report.is_file():
+            print(f"[{cell.name}] best.zip not chosen again: see {folder}", flush=True)
             failed += 1
             continue
-        try:
-            cmd = [_tool("train"), f"resume={folder}", f"hydra.run.dir={folder}"]
-            returncode, commit, seconds = _run_tool(cell.name, folder, cmd, reselect=True)
-            if returncode != 0:
-                failed += 1
-                continue
-            info = json.loads((folder / CELL_FILE).read_text())
-            info["selected"] = {"commit": commit, "seconds": round(seconds, 1), "finished": _now()}
-            (folder / CELL_FILE).write_text(json.dumps(info, indent=1))
-            save_record(plan, cell.name)
-            print(f"[{cell.name}] best.zip chosen again in {seconds / 60:.1f} min", flush=True)
-        finally:
-            (folder / LOCK_FILE).unlink(missing_ok=True)
+        seconds = sweeps.job_seconds(folder, report) or 0.0
+        info = json.loads((folder / CELL_FILE).read_text())
+        info["selected"] = {"commit": commit, "seconds": round(seconds, 1), "finished": _time(report.stat().st_mtime)}
+        (folder / CELL_FILE).write_text(json.dumps(info, indent=1))
+        save_record(plan, cell.name)
+        print(f"[{cell.name}] best.zip chosen again in {seconds / 60:.1f} min", flush=True)
     return 1 if failed else 0
-
-
-def _now() -> str:
-    return datetime.datetime.now().isoformat(timespec="seconds")
-
-
-def minutes_to_finish(plan: Plan, cell: Cell) -> float:
-    """The cell's estimate, less the share of its training steps a killed attempt has done."""
-    from cathsim_dmc.learning.rl.checkpoints import read_evaluations
-
-    folder = plan.folder(cell)
-    if cell.tool != "train" or not (folder / "checkpoints" / "last.zip").is_file():
-        return cell.minutes
-    total = next(int(a.split("=")[1]) for a in cell.args(plan.root) if a.startswith("trainer.total_timesteps="))
-    done = max((e["step"] for e in read_evaluations(folder)), default=0)
-    return cell.minutes * max(0.0, 1 - done / total)
-
-
-def next_cell(plan: Plan, chosen: list, taken: set, minutes_left: float = float("inf")) -> Cell | None:
-    """The first unfinished cell of `chosen` whose needs are met, not in `taken`; or a need it
-    reads that finished on another machine, to be run again here first. A cell estimated to
-    take longer than `minutes_left` is not started (it is added to `taken`, and printed)."""
-    for cell in chosen:
-        if cell.name in taken or plan.done(cell):
-            continue
-        if not all(plan.done(plan.by_name(n)) for n in cell.needs):
-            continue
-        missing = [n for n in cell.inputs(plan) if not plan.here(n) and n not in taken]
-        pick = plan.by_name(missing[0]) if missing else cell
-        if not missing and any(not plan.here(n) for n in cell.inputs(plan)):
-            continue  # its input is being made again by another worker
-        taken.add(pick.name)
-        if (needed := minutes_to_finish(plan, pick)) > minutes_left:
-            print(
-                f"[{pick.name}] not started: estimated {needed:.0f} min, {minutes_left:.0f} min "
-                "left before the deadline",
-                flush=True,
-            )
-            continue
-        if missing:
-            print(f"[{pick.name}] run again on this machine: {cell.name} reads its files", flush=True)
-        return pick
-    return None
-
-
-def run(plan: Plan, only: list | None, jobs: int, deadline: datetime.datetime | None = None) -> int:
-    """Run every unfinished cell (matching `only`) whose needs are met, `jobs` at a time; with
-    a deadline, only cells whose estimate ends before it."""
-    chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
-    lock = threading.Lock()
-    taken: set = set()
-    failed: set = set()
-
-    def worker():
-        while True:
-            with lock:
-                left = (deadline - datetime.datetime.now()).total_seconds() / 60 if deadline else float("inf")
-                cell = next_cell(plan, chosen, taken, left)
-            if cell is None:
-                return
-            if not run_cell(plan, cell):
-                failed.add(cell.name)
-
-    threads = [threading.Thread(target=worker) for _ in range(max(1, jobs))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    waiting = [c.name for c in chosen if not plan.done(c) and c.name not in taken]
-    for name in waiting:
-        cell = plan.by_name(name)
-        needed = [n for n in cell.needs if not plan.done(plan.by_name(n))]
-        needed += [f"{n} (on this machine)" for n in (() if needed else cell.inputs(plan)) if not plan.here(n)]
-        print(f"[{name}] waiting for {', '.join(needed)}")
-    for name in sorted(failed):
-        print(f"[{name}] not finished (failed, or run by another process)")
-    return 1 if failed else 0
-
-
-def _progress(plan: Plan, name: str) -> str:
-    """An unfinished cell with evaluations: "running" while its process holds the lock, else
-    "stopped" (`run` resumes it from its last checkpoint)."""
-    return "running" if _held(plan.root / name / LOCK_FILE) else "stopped"
 
 
 def state(plan: Plan, cell: Cell) -> str:
     folder = plan.folder(cell)
     if plan.done(cell):
         return "done" if plan.here(cell.name) else "recorded"  # recorded: its files are on another machine
-    if _held(folder / LOCK_FILE):
-        return "running"
     if folder.is_dir() and any(folder.iterdir()):
-        return "partial"
+        return "partial"  # killed, or running now: `run` resumes or restarts it
     if not all(plan.done(plan.by_name(n)) for n in cell.needs):
         return "waiting"
     return "to do"
 
 
-def print_plan(plan: Plan) -> None:
+def print_plan(plan: Plan, only: list | None, launcher: list) -> None:
     total = 0.0
     print(f"{'cell':40s} {'tool':8s} {'state':8s} estimated  measured")
     for cell in plan.cells:
@@ -682,12 +663,21 @@ def print_plan(plan: Plan) -> None:
             total += cell.minutes
         print(f"{cell.name:40s} {cell.tool:8s} {state(plan, cell):8s} {cell.minutes:5.0f} min  {measured}")
     print(f"left: about {total / 60:.1f} h of job time (two jobs share the 2 cores)")
+    chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
+    jobs = launches(plan, ready(plan, chosen))
+    if jobs:
+        print("\n`run` launches these multiruns now, one after the other (then those they make ready):")
+    for job in jobs:
+        command = job.command(plan.root.resolve() / "multirun" / f"<time>_{job.tool}", launcher)
+        print(f"\n{len(job.cells)} run(s), about {job.minutes():.0f} min of job time:")
+        print(" ".join([Path(command[0]).name, *command[1:]]))
 
 
 def open_plan(root: Path, budget: str | None, record: Path | None = None) -> Plan:
     """The plan of `root`; the first run records its budget, and a different one is refused.
     The record defaults to experiments/paper_results.json for the full budget, and to
     ROOT/results.json for another."""
+    root = Path(root).resolve()  # every path a job is given is absolute: a cluster job's folder may differ
     started = root / "plan.json"
     if started.is_file():
         recorded = json.loads(started.read_text())["budget"]
@@ -726,19 +716,14 @@ def _result_from(folder: Path) -> dict:
 def save_record(plan: Plan, name: str) -> None:
     """Add a finished cell to the record (one JSON file, rewritten whole: a reader never sees
     half of it)."""
-    import fcntl
-
-    with _RECORD_LOCK:
-        plan.record.parent.mkdir(parents=True, exist_ok=True)
-        with open(plan.record.with_suffix(".lock"), "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)  # another `run` process may finish a cell too
-            recorded = plan.recorded()
-            recorded[name] = _result_from(plan.root / name)
-            tmp = plan.record.with_suffix(".tmp")
-            # one line per cell: a new cell is one new line in the repository's history
-            lines = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(recorded.items())]
-            tmp.write_text("{\n" + ",\n".join(lines) + "\n}\n")
-            tmp.replace(plan.record)
+    plan.record.parent.mkdir(parents=True, exist_ok=True)
+    recorded = dict(plan.recorded())
+    recorded[name] = _result_from(plan.root / name)
+    tmp = plan.record.with_suffix(".tmp")
+    # one line per cell: a new cell is one new line in the repository's history
+    lines = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(recorded.items())]
+    tmp.write_text("{\n" + ",\n".join(lines) + "\n}\n")
+    tmp.replace(plan.record)
 
 
 # -- report --------------------------------------------------------------------------------
@@ -853,7 +838,7 @@ def protocol_table(plan: Plan) -> str:
                 s = report["summary"]
                 result = f"{s['success_pct']['mean']:.0f} / {s['spl_pct']['mean']:.0f}"
             else:
-                result = _progress(plan, name) if evals else "not run"
+                result = "unfinished" if evals else "not run"
             rows.append(
                 [
                     MODALITIES[obs],
@@ -991,7 +976,7 @@ def curves_figure(plan: Plan, path: Path) -> str:
                 name = f"protocol/{obs}/{target}/seed0"
                 evals = _evaluations(plan, name)
                 if evals:  # a protocol cell runs for hours: its curve so far is drawn, and says so
-                    running = "" if _finished(plan, name) else f", {_progress(plan, name)}: {evals[-1]['step']:,} steps"
+                    running = "" if _finished(plan, name) else f", unfinished: {evals[-1]['step']:,} steps"
                     bottom.plot(
                         [e["step"] for e in evals],
                         [e["mean_episode_length"] for e in evals],
@@ -1112,15 +1097,11 @@ def report(plan: Plan, out: Path) -> str:
     return text
 
 
-def parse_deadline(text: str, now: datetime.datetime | None = None) -> datetime.datetime:
-    """HH:MM as its next occurrence after `now` (today, or tomorrow when it has passed)."""
-    now = now or datetime.datetime.now()
-    try:
-        moment = datetime.datetime.strptime(text, "%H:%M").time()
-    except ValueError:
-        raise UsageError(f"--deadline {text}: give a local time as HH:MM, 00:00 to 23:59") from None
-    deadline = datetime.datetime.combine(now.date(), moment)
-    return deadline if deadline > now else deadline + datetime.timedelta(days=1)
+def _only(args) -> tuple:
+    """(--only prefixes, launcher options): a hydra.launcher.* option after --only is the launcher's."""
+    only = [o for o in getattr(args, "only", None) or [] if "=" not in o]
+    extra = [o for o in getattr(args, "only", None) or [] if "=" in o] + getattr(args, "overrides", [])
+    return only, extra
 
 
 def main(argv=None) -> int:
@@ -1134,47 +1115,45 @@ def main(argv=None) -> int:
         "budget, ROOT/results.json for tiny); cells it holds are not run again",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("plan", help="every cell, its state and its cost")
-    r = sub.add_parser("run", help="run the unfinished cells")
-    r.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
-    r.add_argument("--jobs", type=int, default=1, help="cells run at once (2 on a 2-core machine)")
+    p = sub.add_parser("plan", help="every cell, its state and its cost; the multiruns `run` launches now")
+    r = sub.add_parser("run", help="run the unfinished cells as Hydra multiruns")
     r.add_argument("--budget", choices=("full", "tiny"), default=None, help="tiny: a few steps per cell (tests)")
-    r.add_argument(
-        "--deadline",
-        default=None,
-        metavar="HH:MM",
-        help="start only cells whose estimated time ends before this local time (its next occurrence)",
-    )
     sel = sub.add_parser("reselect", help="choose best.zip again in finished training cells with an unbroken tie")
-    sel.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
+    for command in (p, r, sel):
+        command.add_argument("--only", nargs="*", help="cells whose name starts with one of these")
+        sweeps.add_launcher_options(command)
+        command.add_argument("overrides", nargs="*", help="launcher options: hydra.launcher.<key>=<value>")
     rep = sub.add_parser("report", help="the tables and the figure")
     rep.add_argument("--out", type=Path, default=None, help="markdown file (default ROOT/paper.md)")
     args = parser.parse_args(argv)
+    only, extra = _only(args)
     try:
         plan = open_plan(args.root, getattr(args, "budget", None), args.record)
-        if args.command == "run":
-            names = [c.name for c in plan.cells]
-            for prefix in args.only or []:
-                if not any(n.startswith(prefix) for n in names):
-                    raise UsageError(
-                        f"--only {prefix}: no cell starts with it; cells: main/<obs>/<target>/seed<s>, "
-                        f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0"
-                    )
-            if args.jobs < 1:
-                raise UsageError(f"--jobs {args.jobs}: give 1 or more")
-            deadline = parse_deadline(args.deadline) if args.deadline else None
+        names = [c.name for c in plan.cells]
+        for prefix in only:
+            if not any(n.startswith(prefix) for n in names):
+                raise UsageError(
+                    f"--only {prefix}: no cell starts with it; cells: main/<obs>/<target>/seed<s>, "
+                    f"imitation/data/..., imitation/bc/..., force, protocol/<obs>/<target>/seed0"
+                )
+        if args.command != "report":
+            launcher = sweeps.launcher_overrides(args.launcher, args.jobs, extra)
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    if args.command == "plan":
-        print_plan(plan)
-        return 0
-    if args.command == "reselect":
-        return reselect(plan, args.only)
-    if args.command == "run":
-        args.root.mkdir(parents=True, exist_ok=True)
-        (args.root / "plan.json").write_text(json.dumps({"budget": plan.budget}))
-        return run(plan, args.only, args.jobs, deadline)
+    try:
+        if args.command == "plan":
+            print_plan(plan, only, launcher)
+            return 0
+        if args.command == "reselect":
+            return reselect(plan, only, launcher)
+        if args.command == "run":
+            args.root.mkdir(parents=True, exist_ok=True)
+            (args.root / "plan.json").write_text(json.dumps({"budget": plan.budget}))
+            return run(plan, only, launcher)
+    except KeyboardInterrupt:
+        print("stopped; `run` again resumes the cells where they stopped", file=sys.stderr)
+        return 130
     out = args.out or args.root / "paper.md"
     report(plan, out)
     print(f"wrote {out}")

@@ -1,6 +1,11 @@
-"""scripts/generalisation.py's table writer: seeds grouped by their median, success by arch type."""
+"""scripts/generalisation.py: the sweeps it hands to Hydra (what to start, resume or skip),
+a real evaluation multirun whose scores land in their places, and the table writer: seeds
+grouped by their median, success by arch type."""
 
+import itertools
 import json
+import subprocess
+import sys
 
 from conftest import load_script
 
@@ -45,3 +50,123 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_p
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ")[1].strip("| ") for line in lines[1:]}
     assert rows["type2"] == "50" and rows["type1"] == "-" and rows["corpus: noisy"] == "-"
     assert (tmp_path / "table.md").read_text() == text
+
+
+def _script(repo_root, *args):
+    return subprocess.run(
+        [sys.executable, str(repo_root / "scripts" / "generalisation.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+
+
+def test_train_sweeps_the_runs_to_start_resumes_the_killed_and_skips_the_finished(tmp_path, repo_root):
+    from hydra import compose, initialize_config_dir
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    script = load_script(repo_root / "scripts" / "generalisation.py")
+    runs = tmp_path / "runs"
+    (runs / "bca" / "seed1" / "eval").mkdir(parents=True)
+    (runs / "bca" / "seed1" / "eval" / "metrics.json").write_text(json.dumps({"summary": {}}))
+    (runs / "lcca" / "seed1" / "eval").mkdir(parents=True)  # a Ctrl-C's report: not finished
+    (runs / "lcca" / "seed1" / "eval" / "metrics.json").write_text(json.dumps({"summary": {}, "partial": True}))
+    (runs / "lcca" / "seed0" / "checkpoints").mkdir(parents=True)
+    (runs / "lcca" / "seed0" / "checkpoints" / "last.zip").write_bytes(b"")
+    launches = script.train_launches(tmp_path, ["bca", "lcca"], [0, 1], False, ["obs=roadmap_timed"])
+    assert launches[0] == ([], {"resume": [str(runs / "lcca" / "seed0")]}, "${resume}")
+    fixed = launches[1][0]
+    assert sorted((t, s) for _, sweep, _ in launches[1:] for t in sweep["task"] for s in sweep["seed"]) == [
+        ("bca", 0),
+        ("lcca", 1),
+    ]
+    assert fixed[:3] == ["+experiment=navigator", "trainer.progress_bar=false", "trainer.video=false"]
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        for fixed, sweep, subdir in launches[1:]:
+            values = [f"{k}={v[0]}" for k, v in sweep.items()]
+            cfg = compose("train", [*fixed, *values, f"hydra.sweep.subdir={subdir}"], return_hydra_config=True)
+            assert cfg.obs.name == "roadmap_timed" and cfg.aorta.name == "random"  # the navigator recipe
+            assert cfg.hydra.sweep.subdir == str(script.run_folder(tmp_path, cfg.task.target, cfg.seed, False))
+        fixed, sweep, subdir = script.train_launches(tmp_path, ["bca"], [0], True, [])[0]
+        cfg = compose("train", [*fixed, "task=bca", "seed=0", f"hydra.sweep.subdir={subdir}"], return_hydra_config=True)
+        assert cfg.aorta.name == "type1" and cfg.hydra.sweep.subdir == str(runs / "bca" / "type1")
+
+
+def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path, repo_root):
+    from hydra import compose, initialize_config_dir
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    script = load_script(repo_root / "scripts" / "generalisation.py")
+    _write(tmp_path / "scores" / "bca" / "expert" / "type2", [True], ["type2"])  # scored already
+    anatomies = ["heldout", "heldout_noise", "type1", "type2"]
+    jobs = script.evaluation_jobs(tmp_path, "bca", 7, 3, None, False, anatomies)
+    scored = set()
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        for fixed, sweep in jobs:
+            for values in itertools.product(*sweep.values()):
+                overrides = [*fixed, *[f"{k}={v}" for k, v in zip(sweep, values)]]
+                cfg = compose("eval", overrides)
+                job = dict(o.split("=", 1) for o in overrides)
+                scored.add((job["policy"], script.anatomy_of(job)))
+                pool = job.get("aorta") == "random"
+                assert cfg.episodes == (7 if pool else 3) and cfg.seed == script.EVAL_SEED and not cfg.video
+                if pool:
+                    assert (cfg.aorta.params.pool_size, cfg.aorta.params.pool_seed) == (100, 1000)
+                    assert list(cfg.aorta.params.obliquity_deg) == [39.7, 13.79]
+                noisy = script.anatomy_of(job) == "heldout_noise"
+                assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
+                # a trained agent brings its own observations, named where their noise is set
+                assert ("obs" in job) == (job["policy"] == "expert" or noisy)
+    # The expert has no roadmap to be noisy; the shipped navigator has.
+    expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise")}
+    expected |= {("pretrained", a) for a in anatomies}
+    assert scored == expected
+    assert len(jobs) == 5  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
+    corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
+    assert script.anatomy_of(corpus) == "corpus_pinched"
+    assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "500"}) == "tuning"
+
+
+def test_evaluate_runs_a_multirun_and_files_each_score_in_its_place(tmp_path, repo_root):
+    result = _script(
+        repo_root,
+        "--root",
+        str(tmp_path),
+        "evaluate",
+        "--only",
+        "expert",
+        "--anatomies",
+        "type1",
+        "type2",
+        "--shipped-episodes",
+        "1",
+        "--jobs",
+        "2",
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "cathsim-eval -m hydra/launcher=joblib hydra.launcher.n_jobs=2" in result.stdout
+    assert "aorta=type1,type2" in result.stdout
+    for anatomy in ("type1", "type2"):
+        report = json.loads((tmp_path / "scores" / "bca" / "expert" / anatomy / "metrics.json").read_text())
+        assert report["aorta"] == anatomy and len(report["per_episode"]) == 1
+    assert not (tmp_path / "multirun").exists() or not any((tmp_path / "multirun").iterdir())
+    again = _script(repo_root, "--root", str(tmp_path), "evaluate", "--only", "expert", "--anatomies", "type1")
+    assert again.returncode == 0 and "cathsim-eval" not in again.stdout  # scored already
+    text = load_script(repo_root / "scripts" / "generalisation.py").report(tmp_path, None)
+    assert "| anatomy | BCA: expert |" in text
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, repo_root):
+    for args, expected in (
+        (["train", "--specialist", "--seed", "0", "1"], "--seed 0 1: the specialist is one run per task"),
+        (["train", "--launcher", "slurmm"], "--launcher slurmm: choose one of"),
+        (["evaluate", "--jobs", "0"], "--jobs 0: give 1 or more"),
+        (["evaluate", "trainer.device=cuda"], "trainer.device=cuda"),
+    ):
+        result = _script(repo_root, "--root", str(tmp_path), *args)
+        assert result.returncode == 2, result.stdout + result.stderr
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and expected in lines[0], result.stderr
+    assert not any(tmp_path.iterdir())  # nothing was run

@@ -1,6 +1,8 @@
-"""scripts/paper_tables.py: every cell's command composes, a finished cell is skipped, a
-killed one resumes, the tables are written from what finished, and bad input is refused."""
+"""scripts/paper_tables.py: every cell composes into its recipe, the cells become Hydra
+multiruns that put each job in its cell's folder, a finished cell is skipped, a killed one
+resumes, the tables are written from what finished, and bad input is refused."""
 
+import itertools
 import json
 import os
 import re
@@ -64,8 +66,84 @@ def test_every_training_cell_composes_into_its_recipe(paper, tmp_path):
                 cfg = compose(cell.tool, overrides=_overrides(paper.command(plan, cell)))
                 if cell.tool == "bc":
                     assert cfg.bc.frames == 1 and cfg.bc.image_key == "pixels"  # the paper's student
+                    assert str(tmp_path / "imitation" / "data") in str(cfg.data)
                 if "onesided" in cell.name:  # every start on one side of pi
                     assert cfg.task.start_rotation_rad - cfg.task.start_rotation_jitter_rad > 3.14159265
+
+
+def _jobs(launch):
+    """Each job of a multirun: its overrides (the fixed ones, then one value of each swept key)."""
+    keys = list(launch.sweep)
+    for values in itertools.product(*launch.sweep.values()):
+        yield dict(zip(keys, values)), [*launch.fixed, *[f"{k}={v}" for k, v in zip(keys, values)]]
+
+
+def test_the_cells_become_multiruns_whose_jobs_are_the_cells(paper, tmp_path):
+    """A job of a multirun composes, with Hydra's own resolution of the sweep's subdir, to
+    its cell's folder and to the config of the cell's command run alone."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf, open_dict
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    plan = paper.build_plan(tmp_path, record=tmp_path / "results.json")
+    cells = paper.ready(plan, plan.cells)
+    assert all(not c.needs for c in cells) and len(cells) == 30 + 8 + 4  # main, datasets, protocol
+    launches = paper.launches(plan, cells)
+    assert sorted(c.name for job in launches for c in job.cells) == sorted(c.name for c in cells)
+    # The main table is two sweeps: the joints' 8,000 steps, and the images' 3,000.
+    first, second = launches[0], launches[1]
+    assert first.sweep == {"obs": ["internal"], "task": ["bca", "lcca"], "seed": [0, 1, 2]}
+    images = ["enn", "pixels_mask", "pixels", "internal_pixels"]
+    assert second.sweep == {"obs": images, "task": ["bca", "lcca"], "seed": [0, 1, 2]}
+    assert len(launches) == 2 + 4 + 2  # and four dataset sweeps over the targets, two protocol sweeps
+    with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
+        for job in launches:
+            by_name = {c.name: c for c in job.cells}
+            jobs = list(_jobs(job))
+            assert len(jobs) == len(job.cells)
+            for values, overrides in (jobs[0], jobs[-1]):  # (composing each of the 42 takes a minute)
+                cfg = compose(job.tool, [*overrides, f"hydra.sweep.subdir={job.subdir}"], return_hydra_config=True)
+                cell = by_name[os.path.relpath(cfg.hydra.sweep.subdir, tmp_path)]
+                assert cell.sweep == values
+                alone = compose(job.tool, overrides=_overrides(paper.command(plan, cell)))
+                with open_dict(cfg):
+                    del cfg["hydra"]
+                assert OmegaConf.to_container(cfg, resolve=True) == OmegaConf.to_container(alone, resolve=True)
+    # A cell finished here (or on another machine) is not run again: the remaining seeds
+    # of the block are swept, and the sweeps hold every unfinished cell once.
+    done = ["main/internal/bca/seed1", "main/enn/lcca/seed0", "imitation/data/expert_more_bca"]
+    plan.record.write_text(json.dumps({name: {"info": {"cell": name}} for name in done}))
+    left = paper.ready(plan, plan.cells)
+    assert sorted(c.name for c in left) == sorted(c.name for c in cells if c.name not in done)
+    launches = paper.launches(plan, left)
+    names = [c.name for job in launches for c in job.cells]
+    assert sorted(names) == sorted(c.name for c in left)
+    for job in launches:
+        assert len(list(_jobs(job))) == len(job.cells)
+    # A training cell killed after its first checkpoint resumes in its own folder.
+    killed = tmp_path / "main/pixels/bca/seed2"
+    (killed / "checkpoints").mkdir(parents=True)
+    (killed / "checkpoints" / "last.zip").write_bytes(b"")
+    resume = next(job for job in paper.launches(plan, paper.ready(plan, plan.cells)) if "resume" in job.sweep)
+    assert (resume.tool, resume.fixed, resume.sweep, resume.subdir) == (
+        "train",
+        [],
+        {"resume": [str(killed)]},
+        "${resume}",
+    )
+    command = resume.command(tmp_path / "multirun", ["hydra/launcher=joblib"])
+    assert f"hydra.run.dir={tmp_path / 'multirun'}" in command  # not set from resume= (cathsim-train)
+
+
+def test_a_partial_set_of_jobs_is_swept_as_few_products_as_merging_finds(repo_root):
+    sweeps = load_script(repo_root / "scripts" / "sweeps.py")
+    points = [{"task": t, "seed": s} for t in ("bca", "lcca") for s in (0, 1, 2) if (t, s) != ("bca", 1)]
+    blocks = sweeps.blocks(points)
+    covered = [dict(zip(b, v)) for b in blocks for v in itertools.product(*b.values())]
+    assert sorted(map(str, covered)) == sorted(map(str, points))  # each point once, nothing else
+    assert len(blocks) == 2
+    assert sweeps.blocks([{"task": t} for t in ("bca", "lcca")]) == [{"task": ["bca", "lcca"]}]
 
 
 def test_cells_wait_for_what_they_need(paper, tmp_path):
@@ -102,36 +180,24 @@ def test_a_cell_whose_input_finished_on_another_machine_runs_that_input_again_fi
     )
     student, data = plan.by_name("imitation/bc/expert_bca"), plan.by_name("imitation/data/expert_bca")
     assert paper.state(plan, data) == "recorded" and plan.done(data)
-    taken = set()
-    assert paper.next_cell(plan, [student], taken) is data  # the dataset is made again here first
+    assert paper.ready(plan, [student]) == [data]  # the dataset is made again here first
     assert "run again on this machine" in capsys.readouterr().out
-    assert paper.next_cell(plan, [student], taken) is None  # while another worker makes it
+    assert paper.ready(plan, [student], {data.name}) == []  # unless that failed
     (tmp_path / data.name).mkdir(parents=True)
     (tmp_path / data.name / paper.CELL_FILE).write_text("{}")
-    assert paper.next_cell(plan, [student], taken) is student and paper.state(plan, data) == "done"
+    assert paper.ready(plan, [student]) == [student] and paper.state(plan, data) == "done"
 
     # The ENN agent's dataset: the record's best seed (success, then SPL) is trained again;
     # once a seed's checkpoints are here, its run is the one used.
     enn_data = plan.by_name("imitation/data/enn_bca")
-    assert paper.next_cell(plan, [enn_data], set()).name == "main/enn/bca/seed1"
+    assert [c.name for c in paper.ready(plan, [enn_data])] == ["main/enn/bca/seed1"]
     seed2 = tmp_path / "main/enn/bca/seed2"
     (seed2 / "eval").mkdir(parents=True)
     (seed2 / "eval" / "metrics.json").write_text(json.dumps({**summary(90, 60), "per_episode": []}))
     (seed2 / paper.CELL_FILE).write_text("{}")
     assert paper.best_enn_run(plan, "bca") == tmp_path / "main/enn/bca/seed2"
-    assert paper.next_cell(plan, [enn_data], set()) is enn_data
-
-    # A deadline: a cell estimated to end after it is not started.
-    taken = set()
-    assert paper.next_cell(plan, [enn_data], taken, minutes_left=enn_data.minutes - 1) is None
-    assert taken == {enn_data.name} and "not started: estimated" in capsys.readouterr().out
-    # A killed training cell needs only the share of its estimate it has not done yet.
-    cell = plan.by_name("main/pixels_mask/bca/seed0")
-    (tmp_path / cell.name / "checkpoints").mkdir(parents=True)
-    (tmp_path / cell.name / "checkpoints" / "last.zip").write_bytes(b"")
-    (tmp_path / cell.name / "evaluations.jsonl").write_text(json.dumps({"step": paper.MAIN_STEPS["pixels_mask"] // 2}))
-    assert paper.minutes_to_finish(plan, cell) == pytest.approx(cell.minutes / 2)
-    assert paper.next_cell(plan, [cell], set(), minutes_left=cell.minutes / 2 + 1) is cell
+    assert paper.ready(plan, [enn_data]) == [enn_data]
+    assert f"policy={seed2}" in paper.command(plan, enn_data)
 
 
 def test_a_protocol_curve_from_the_record_alone_draws_its_return_when_kept(paper, tmp_path):
@@ -145,45 +211,16 @@ def test_a_protocol_curve_from_the_record_alone_draws_its_return_when_kept(paper
     assert "1 curves drawn" in caption and "mean return" in caption
 
 
-def test_an_unfinished_protocol_cell_is_running_only_while_its_lock_is_held(paper, tmp_path):
+def test_an_unfinished_protocol_cell_shows_its_curve_so_far(paper, tmp_path):
     plan = paper.build_plan(tmp_path, "tiny", record=tmp_path / "results.json")
     folder = tmp_path / "protocol/internal/lcca/seed0"
     folder.mkdir(parents=True)
     (folder / "evaluations.jsonl").write_text(
         json.dumps({"step": 10, "success_rate": 0.0, "mean_return": -40.0, "mean_episode_length": 300.0}) + "\n"
     )
-
-    def row():
-        return next(line for line in paper.protocol_table(plan).splitlines() if "| Internal | LCCA |" in line)
-
-    assert "| stopped |" in row() and "running" not in row()
-    assert paper._claim(folder)  # this process runs it now
-    assert "| running |" in row()
-
-
-def test_a_deadline_is_its_next_occurrence(paper):
-    import datetime
-
-    now = datetime.datetime(2026, 11, 28, 14, 0)
-    assert paper.parse_deadline("14:30", now) == datetime.datetime(2026, 11, 28, 14, 30)
-    assert paper.parse_deadline("13:30", now) == datetime.datetime(2026, 11, 29, 13, 30)
-
-
-def test_a_held_lock_keeps_a_second_runner_out_and_a_stale_one_is_taken_over(paper, tmp_path):
-    folder = tmp_path / "cell"
-    lock = folder / paper.LOCK_FILE
-    assert paper._claim(folder)
-    assert not paper._claim(folder)  # held by this (live) process
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    lock.write_text(f"{dead.pid} {paper._boot_id()}")
-    assert paper._claim(folder)
-    assert lock.read_text() == f"{os.getpid()} {paper._boot_id()}"
-    # A lock written before a restart names a pid that may be in use again (here, this
-    # process's own): it is stale all the same.
-    lock.write_text(f"{os.getpid()} another-boot")
-    assert not paper._held(lock)
-    assert paper._claim(folder)
+    row = next(line for line in paper.protocol_table(plan).splitlines() if "| Internal | LCCA |" in line)
+    assert row.startswith("| Internal | LCCA | 10 | 0 | unfinished |")
+    assert paper.state(plan, plan.by_name("protocol/internal/lcca/seed0")) == "partial"
 
 
 def test_bad_input_is_one_line_and_exit_2(repo_root, tmp_path):
@@ -194,7 +231,10 @@ def test_bad_input_is_one_line_and_exit_2(repo_root, tmp_path):
         (["run", "--budget", "full"], "--budget tiny"),
         (["run", "--only", "mian/enn"], "mian/enn"),
         (["run", "--jobs", "0"], "--jobs 0"),
-        (["run", "--deadline", "25:00"], "--deadline 25:00"),
+        (["run", "--launcher", "slurmm"], "--launcher slurmm: choose one of joblib, submitit_slurm"),
+        (["run", "--launcher", "submitit_slurm", "--jobs", "2"], "--jobs 2: only with --launcher joblib"),
+        (["run", "trainer.device=cuda"], "trainer.device=cuda: give launcher options as hydra.launcher."),
+        (["plan", "--only", "main/enn", "hydra.launcher=x"], "hydra.launcher=x"),
     ):
         result = _script(repo_root, "--root", str(root), *args)
         assert result.returncode == 2, result.stderr
@@ -230,9 +270,10 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     _wait_for(folder / "checkpoints" / "last.zip", process)
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
-    assert not (folder / paper.CELL_FILE).exists() and (folder / paper.LOCK_FILE).exists()
-    listing = _script(repo_root, "--root", str(tmp_path), "plan").stdout
-    assert re.search(rf"^{cell}\s+train\s+partial", listing, re.M), listing  # its lock's process is gone
+    assert not (folder / paper.CELL_FILE).exists()
+    listing = _script(repo_root, "--root", str(tmp_path), "plan", "--only", cell).stdout
+    assert re.search(rf"^{cell}\s+train\s+partial", listing, re.M), listing
+    assert f"resume={folder} " in listing and "hydra.sweep.subdir=${resume}" in listing  # what `run` launches
     # An unfinished seed's curve is not drawn: it would stop short of the finished ones.
     assert (folder / "evaluations.jsonl").read_text().strip()
     doc = tmp_path / "paper.md"
@@ -241,16 +282,18 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
 
     result = subprocess.run(run, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
+    assert f"[{cell}] finished in " in result.stdout
     attempts = [json.loads(line) for line in (folder / "attempts.jsonl").read_text().splitlines()]
     assert len(attempts) == 2 and f"resume={folder}" in attempts[1]["command"]
     assert not any(a.startswith("resume=") for a in attempts[0]["command"])
     info = json.loads((folder / paper.CELL_FILE).read_text())
-    assert info["attempts"] == 2 and info["budget"] == "tiny"
+    assert info["attempts"] == 2 and info["budget"] == "tiny" and info["command"].startswith("cathsim-train resume=")
+    assert info["commit"] == attempts[1]["commit"] and 0 < info["seconds"] < 600
     assert json.loads((folder / "evaluations.jsonl").read_text().splitlines()[-1])["step"] == 20
-    assert not (folder / paper.LOCK_FILE).exists()
+    assert len(list((tmp_path / "multirun").iterdir())) == 2  # each launch's multirun.yaml
 
     again = subprocess.run(run, capture_output=True, text=True, timeout=600)
-    assert again.returncode == 0 and cell not in again.stdout
+    assert again.returncode == 0 and cell not in again.stdout and "cathsim-train" not in again.stdout
     assert json.loads((folder / paper.CELL_FILE).read_text()) == info
 
     # The tables: the finished cell fills its row from its final report; the rest say "not run".
@@ -277,13 +320,13 @@ def test_a_killed_cell_resumes_a_finished_one_is_skipped_and_the_tables_follow(p
     (folder / "evaluations.jsonl").write_text("".join(json.dumps(e) + "\n" for e in tied))
     best = json.loads((folder / "checkpoints" / "best.json").read_text())
     assert "tie_break" not in best
-    demonstrations = (folder / "tool.log").read_text().count("] - demonstrations: ")
+    demonstrations = (folder / "train.log").read_text().count("] - demonstrations: ")
     assert demonstrations >= 1
     result = _script(repo_root, "--root", str(tmp_path), "reselect")
     assert result.returncode == 0 and f"[{cell}] best.zip chosen again" in result.stdout, result.stdout
     reselected = json.loads((folder / paper.CELL_FILE).read_text())
     assert {k: v for k, v in reselected.items() if k != "selected"} == info
-    assert (folder / "tool.log").read_text().count("] - demonstrations: ") == demonstrations  # none recorded again
+    assert (folder / "train.log").read_text().count("] - demonstrations: ") == demonstrations  # none recorded again
     assert json.loads((folder / "checkpoints" / "best.json").read_text())["tie_break"]["after_step"] == 20
     assert json.loads((tmp_path / "results.json").read_text())[cell]["info"] == reselected
     info = reselected
