@@ -184,7 +184,7 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     print(assert_one_line_error(proc, "import needs entry="))
 
 
-def test_bad_crop_and_caps_values_are_refused_before_any_work(type1_mm_stl, tmp_path):
+def test_bad_crop_caps_and_frame_values_are_refused_before_any_work(type1_mm_stl, tmp_path):
     stl, src = type1_mm_stl
     base = [
         "import",
@@ -196,6 +196,10 @@ def test_bad_crop_and_caps_values_are_refused_before_any_work(type1_mm_stl, tmp_
     print(assert_one_line_error(run(*base, "crop=some"), "crop='some' is not valid", "'auto', 'none'"))
     print(assert_one_line_error(run(*base, "crop_mm=2"), "crop_mm=2 is not valid", "5 mm or more"))
     print(assert_one_line_error(run(*base, f"caps=[{tmp_path / 'inlet.stl'}]"), "inlet.stl is not a file"))
+    print(assert_one_line_error(run(*base, "frame=LSP"), "frame='LSP' is not valid", "['sim', 'LPS', 'RAS']"))
+    # Before the mesh is read: a missing file is not reached.
+    missing = ["import", f"mesh={tmp_path / 'none.stl'}", *base[2:], "frame=xyz"]
+    print(assert_one_line_error(run(*missing), "frame='xyz' is not valid"))
     assert not (tmp_path / "x").exists()
 
 

@@ -13,7 +13,10 @@ An asset folder (format_version 1) holds:
   arches ``arch_type`` (measured class), ``tortuosity`` (path/chord of the arch
   and of each branch's first 3 cm), ``max_aortic_diameter_m`` and, when built
   with a mesher later than version 1, ``mesher_version`` (`lumen` module
-  docstring; absent means 1, so the assets built before it keep their bytes).
+  docstring; absent means 1, so the assets built before it keep their bytes); imported
+  meshes ``import`` (repairs and notes) and, from a mesh in patient axes (``frame=LPS`` or
+  ``RAS``), ``source_frame``: the frame, its units and the 4x4 transforms ``to_sim`` (a mesh
+  point to the asset's metres) and ``from_sim`` (back; absent means the simulator's axes).
 - ``visual.stl``: binary STL of the closed lumen surface, metres, outward normals.
 - ``collision.npz``: ``vertices`` float32 (M, 3) and ``hull_offsets`` int32
   (H + 1,); hull i is ``vertices[hull_offsets[i]:hull_offsets[i + 1]]``, a

@@ -3,11 +3,17 @@
     from cathsim_dmc.anatomy.importer import import_mesh
     report = import_mesh("lumen.stl", "assets_local/patient7", units="mm",
                          entry=[30, -110, -5], sites={"bca": [-27, 74, 2], "lcca": [-1, 79, 0]})
+    report = import_mesh("slicer_lumen.stl", "assets_local/patient8", units="mm", frame="LPS",
+                         entry=[...], sites={"bca": [...]})   # points in the mesh's frame and units
 
 The pipeline, each step with one clear error (`MeshImportError`) when it cannot
 go on:
 
-1. **read** the mesh with trimesh;
+1. **read** the mesh with trimesh and turn it from its ``frame`` into the
+   simulator's (`frames`: ``"sim"``, the default, is +x patient left, +y superior,
+   +z anterior; ``"LPS"`` is DICOM's and 3D Slicer's, ``"RAS"`` some tools'), the
+   entry, sites and entry direction with it; the scanner's origin is kept. The asset
+   records the frame and the transform (meta.json ``source_frame``);
 2. **repair** what is safe to repair: merge duplicate vertices, drop degenerate
    and duplicate triangles, drop loose pieces, fill 3-4 edge holes (trimesh),
    close open vessel ends (holes whose rim is a flat loop), fix the triangle
@@ -15,7 +21,7 @@ go on:
    flat vessel ends or a surface that stays open are refused;
 3. **units**: ``units="mm"`` or ``"m"``, or ``"auto"``: a mesh more than 2
    units across is taken to be in millimetres (a note says so). Sites and the
-   entry are given in the mesh's units;
+   entry are given in the mesh's units (and frame);
 4. **signed distance grid** of the lumen (exact within a narrow band around the
    surface, flood fill + distance transform elsewhere);
 5. **centerlines**: shortest paths on the lumen voxels at least the wire probe
@@ -65,6 +71,7 @@ import numpy as np
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
 from cathsim_dmc.anatomy.centerlines import estimate_entry_direction, lumen_centerlines
 from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around
+from cathsim_dmc.anatomy.frames import SIM_FRAME, frame_rotation, from_sim, sim_axes, to_sim, to_sim_matrix
 from cathsim_dmc.anatomy.import_error import MeshImportError, format_point
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.lumen import FoldedSurfaceError
@@ -133,6 +140,20 @@ def terrace_step_m(v: np.ndarray, f: np.ndarray) -> Optional[float]:
     return float(np.median(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)))
 
 
+def source_frame_record(frame: str, units: str, scale: float) -> dict:
+    """meta.json's ``source_frame``: the mesh's frame and units, and the 4x4 transforms between them
+    and the asset's coordinates (the simulator's frame, metres)."""
+    back = np.eye(4)
+    back[:3, :3] = frame_rotation(frame).T / scale
+    return {
+        "frame": frame,
+        "units": units,
+        "to_sim": json_rounded(to_sim_matrix(frame, scale)),
+        "from_sim": json_rounded(back),
+        "use": "asset point (m) = to_sim @ [x, y, z, 1] of a mesh point; from_sim maps asset points back",
+    }
+
+
 def _vec(value, what) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
@@ -151,6 +172,7 @@ def import_mesh(
     entry: Sequence[float],
     entry_direction: Optional[Sequence[float]] = None,
     units: str = "auto",
+    frame: str = SIM_FRAME,
     name: Optional[str] = None,
     wall_thickness_m: float = 0.002,
     edge_length_m: Optional[float] = None,
@@ -177,6 +199,7 @@ def import_mesh(
     name = name or path.stem
     if not sites:
         raise ValueError("give at least one site, e.g. sites.bca=[x,y,z]")
+    frame_rotation(frame)  # ValueError naming the frames
     entry_in = _vec(entry, "entry")
     sites_in = {str(k): _vec(p, f"sites.{k}") for k, p in sites.items()}
     dir_in = None if entry_direction is None else _vec(entry_direction, "entry_direction")
@@ -202,8 +225,15 @@ def import_mesh(
     for cap in caps:  # an open (CFD) wall's separate cap surfaces: more triangles of the same surface
         cv, cf = read_lumen(cap)
         v, f = np.concatenate([v, cv]), np.concatenate([f, cf + len(v)])
+    v = to_sim(v, frame)
+    shown = (lambda p: from_sim(p, frame)) if frame != SIM_FRAME else np.asarray  # messages: the mesh's frame
     scale, units_used, note = detect_units(v, units, path)
     notes = [note] if note else []
+    if frame != SIM_FRAME:
+        notes.append(
+            f"frame={frame}: the mesh and the points given turned into the simulator's frame (x left, y superior, "
+            f"z anterior) as {sim_axes(frame)}, the scanner's origin kept"
+        )
     if caps:
         notes.append(f"{len(caps)} cap surface{'s' * (len(caps) > 1)} added to the wall")
     for n_ in notes:
@@ -214,8 +244,8 @@ def import_mesh(
             f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
             f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh"
         )
-    entry_m = entry_in * scale
-    sites_m = {k: p * scale for k, p in sites_in.items()}
+    entry_m = to_sim(entry_in, frame) * scale
+    sites_m = {k: to_sim(p, frame) * scale for k, p in sites_in.items()}
     labels = ["entry"] + [f"sites.{k}" for k in sites_m]
     given = [entry_in] + list(sites_in.values())
 
@@ -244,7 +274,7 @@ def import_mesh(
 
     if not use_volume:
         try:
-            v_closed, f_closed, repairs = repair_lumen(v, f, path, units_used)
+            v_closed, f_closed, repairs = repair_lumen(v, f, path, units_used, shown=shown)
         except MeshImportError as exc:
             if repair == "surface":
                 raise
@@ -286,7 +316,9 @@ def import_mesh(
         check_grid_memory(v, f, h, pad, path)
         smooth = h if smooth_m is None else float(smooth_m)
         try:
-            grid, vnotes = volume_sdf_grid(v, f, h, pad, entry_m, sites_m, max_gap_m=close_gap_m, smooth_m=smooth)
+            grid, vnotes = volume_sdf_grid(
+                v, f, h, pad, entry_m, sites_m, max_gap_m=close_gap_m, smooth_m=smooth, shown=shown
+            )
         except VolumeError as exc:
             raise MeshImportError(f"{path}: {exc}") from None
         for n_ in vnotes:
@@ -328,10 +360,14 @@ def import_mesh(
         raise MeshImportError(f"{path}: {placement[0]}")
     if dir_in is None:
         direction = estimate_entry_direction(grid, entry_m, centerlines)
-        notes.append(f"entry direction estimated from the lumen near the entry: {format_point(direction, digits=3)}")
+        in_frame = "" if frame == SIM_FRAME else f" ({frame})"
+        notes.append(
+            "entry direction estimated from the lumen near the entry: "
+            f"{format_point(from_sim(direction, frame), digits=3)}{in_frame}"
+        )
         log(f"note: {notes[-1]}")
     else:
-        direction = dir_in / np.linalg.norm(dir_in)
+        direction = to_sim(dir_in, frame) / np.linalg.norm(dir_in)
 
     mean_edge, min_angle = triangle_stats(v, f)
     cropped = any(r.startswith("cropped ") for r in repairs)
@@ -371,7 +407,9 @@ def import_mesh(
             )
             break
         except FoldedSurfaceError as exc:
-            where = format_point(exc.where, 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4)
+            where = format_point(
+                from_sim(exc.where, frame), 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4
+            )
             away = distance_to_paths_m(list(centerlines.values()), exc.where)
             remedy = None
             if not do_remesh:
@@ -392,6 +430,7 @@ def import_mesh(
                     entry=entry,
                     entry_direction=entry_direction,
                     units=units,
+                    frame=frame,
                     name=name,
                     wall_thickness_m=wall_thickness_m,
                     edge_length_m=edge_length_m,
@@ -441,6 +480,7 @@ def import_mesh(
         "source": path.name,
         "source_sha256": digest,
         "units": units_used,
+        **({} if frame == SIM_FRAME else {"frame": frame}),
         "entry": json_rounded(entry_in),
         "entry_direction": None if dir_in is None else json_rounded(dir_in),
         "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
@@ -454,7 +494,7 @@ def import_mesh(
         "repair": "volume" if use_volume else "surface",
     }
     description = (
-        f"Imported lumen surface {path.name} ({units_used}); "
+        f"Imported lumen surface {path.name} ({units_used}{'' if frame == SIM_FRAME else ', ' + frame}); "
         f"{'remeshed' if do_remesh else 'triangles kept'}; wall: one "
         f"{wall_thickness_m * 1e3:g} mm prism per lumen triangle; repairs: "
         f"{'; '.join(repairs) if repairs else 'none'}."
@@ -480,6 +520,7 @@ def import_mesh(
                 "counts": {"triangles": int(len(lumen.faces)), "hulls": int(len(prisms))},
                 "ostia": {k: json_rounded(p) for k, p in sorted(ostia.items())},
                 "import": {"repairs": repairs, "notes": notes},
+                **({} if frame == SIM_FRAME else {"source_frame": source_frame_record(frame, units_used, scale)}),
             },
         )
         report = validator(tmp) if validate else None

@@ -34,8 +34,9 @@ def read_lumen(path) -> "tuple[np.ndarray, np.ndarray]":
     return v, f
 
 
-def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarray, List[str]]":
-    """Safe repairs; MeshImportError when the surface cannot be made a closed 2-manifold."""
+def repair_lumen(v, f, path, units_label="units", shown=np.asarray) -> "tuple[np.ndarray, np.ndarray, List[str]]":
+    """Safe repairs; MeshImportError when the surface cannot be made a closed 2-manifold. Its
+    messages show a point `p` as `shown(p)` (the importer's map back into the mesh's frame)."""
     import trimesh
 
     repairs = []
@@ -62,7 +63,7 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
     edges = np.sort(mesh.edges, axis=1)
     uniq_e, counts = np.unique(edges, axis=0, return_counts=True)
     if np.any(counts > 2):
-        where = mesh.vertices[uniq_e[counts > 2][0, 0]]
+        where = shown(mesh.vertices[uniq_e[counts > 2][0, 0]])
         raise MeshImportError(
             f"{path}: non-manifold surface: {int(np.sum(counts > 2))} edges are shared by more than two "
             f"triangles (first at {format_point(where, digits=3)} {units_label}); a lumen must be one closed surface"
@@ -99,7 +100,7 @@ def repair_lumen(v, f, path, units_label="units") -> "tuple[np.ndarray, np.ndarr
             # A flat loop whose points all see its centroid: a vessel end cut by the segmentation.
             if len(loop) < 5 or off > 0.05 * size:
                 raise MeshImportError(
-                    f"{path}: not watertight: a hole of {len(loop)} edges around {format_point(c, digits=3)} "
+                    f"{path}: not watertight: a hole of {len(loop)} edges around {format_point(shown(c), digits=3)} "
                     f"{units_label} is not a flat vessel end ({off / max(size, 1e-12) * 100:.0f}% out of plane); "
                     f"cannot close it safely"
                 )

@@ -25,7 +25,7 @@ The result is an `SDFGrid` the importer meshes like a generated arch.
 
 from __future__ import annotations
 
-from typing import List, Mapping, Sequence
+from typing import Callable, List, Mapping, Sequence
 
 import numpy as np
 from scipy import ndimage, spatial
@@ -94,12 +94,14 @@ def volume_sdf_grid(
     max_gap_m: float = 0.002,
     smooth_m: float = 0.0,
     max_nodes: int = 60_000_000,
+    shown: Callable[[np.ndarray], np.ndarray] = np.asarray,
 ) -> "tuple[SDFGrid, List[str]]":
     """Signed distance grid (positive outside) of the lumen around `entry`, and notes on what was done.
 
     `v` (metres) and `f` need not form a closed or manifold surface; see the module docstring.
     Raises VolumeError (one line) when the entry is not enclosed, the sites lie in another
-    piece, or the grid would exceed `max_nodes`.
+    piece, or the grid would exceed `max_nodes`. Its messages show a point `p` as `shown(p)` (the
+    importer's map back into the mesh's frame).
     """
     notes: List[str] = []
     h = float(spacing)
@@ -125,7 +127,7 @@ def volume_sdf_grid(
     for k, ix in seed_idx.items():
         if shell[ix]:
             raise VolumeError(
-                f"{k}={_fmt_mm(seeds[k])} lies within {h * 1e3:.1f} mm of the surface; put it "
+                f"{k}={_fmt_mm(shown(seeds[k]))} lies within {h * 1e3:.1f} mm of the surface; put it "
                 f"further inside the vessel or pass a smaller sdf_mm"
             )
     # Outside: the flood from the border; a leak into a seed is closed by thickening the shell.
@@ -148,7 +150,7 @@ def volume_sdf_grid(
             break
     else:
         raise VolumeError(
-            f"the surface is open: the outside reaches {leaked[0]}={_fmt_mm(seeds[leaked[0]])} through "
+            f"the surface is open: the outside reaches {leaked[0]}={_fmt_mm(shown(seeds[leaked[0]]))} through "
             f"a gap wider than {max_gap_m * 1e3:.1f} mm; close the vessel's ends or pass a larger "
             f"close_mm"
         )
@@ -165,7 +167,7 @@ def volume_sdf_grid(
     apart = [k for k, ix in seed_idx.items() if pieces[ix] != lumen_label]
     if apart:
         raise VolumeError(
-            f"{apart[0]}={_fmt_mm(seeds[apart[0]])} is not in the same vessel as the entry (the "
+            f"{apart[0]}={_fmt_mm(shown(seeds[apart[0]]))} is not in the same vessel as the entry (the "
             f"surface separates them); check the point or pass a smaller sdf_mm"
         )
     lumen = pieces == lumen_label

@@ -3,6 +3,7 @@
     cathsim-aorta build arch_type=3 seed=7 name=my_arch out=my_arch
     cathsim-aorta build preset=bovine arch_height_m=0.04           # into the cache; prints the folder
     cathsim-aorta import mesh=lumen.stl units=mm entry=[30,-110,-5] sites.bca=[-27,74,2] sites.lcca=[-1,79,0]
+    cathsim-aorta import mesh=slicer.stl units=mm frame=LPS entry=[...] sites.bca=[...]  # a CT segmentation
     cathsim-aorta import mesh=wall.stl caps=[inlet.stl,outlet1.stl] entry=[...] sites.bca=[...]  # a CFD wall
     cathsim-aorta validate my_arch                                 # or a shipped name: type2
     cathsim-aorta list
@@ -19,8 +20,10 @@ build: `preset` (default type1) is the starting point; `arch_type=1|2|3` turns i
   $CATHSIM_DMC_CACHE/aortas). `validate=false` skips the checks.
 
 import: `mesh=FILE` (STL/OBJ lumen surface), `entry=[x,y,z]` and one or more
-  `sites.NAME=[x,y,z]`, all in the mesh's units; optional `entry_direction=[x,y,z]`
-  (else estimated from the lumen), `units=auto|mm|m`, `name=`, `out=DIR`
+  `sites.NAME=[x,y,z]`, all in the mesh's units and frame; optional `entry_direction=[x,y,z]`
+  (else estimated from the lumen), `units=auto|mm|m`, `frame=sim|LPS|RAS` (the mesh's
+  axes; `sim`, the default, is x patient left, y superior, z anterior; CT and 3D Slicer
+  exports are LPS), `name=`, `out=DIR`
   (default ./NAME), `wall_mm=2`, `edge_mm=auto`, `sdf_mm=auto`,
   `remesh=auto|true|false`, `open_end_mm=5`, `validate=true`, `overwrite=false`.
   `repair=auto|surface|volume`: `surface` makes only safe repairs to the surface
@@ -55,6 +58,7 @@ IMPORT_KEYS = (
     "entry",
     "entry_direction",
     "units",
+    "frame",
     "name",
     "out",
     "wall_mm",
@@ -241,8 +245,12 @@ def cmd_import(args: List[str]) -> int:
             fail(f"{key}={value!r} is not valid; give millimetres (0 or more){' or auto' if default == 'auto' else ''}")
         return float(value) * 1e-3
 
+    from cathsim_dmc.anatomy.frames import FRAMES
     from cathsim_dmc.anatomy.importer import CROP_MODES, DEFAULT_CROP_MARGIN_M, REPAIR_MODES
 
+    frame = str(opts.pop("frame", "sim"))
+    if frame not in FRAMES:
+        fail(f"frame={frame!r} is not valid; choose one of {list(FRAMES)}")
     repair = str(opts.pop("repair", "auto"))
     if repair not in REPAIR_MODES:
         fail(f"repair={repair!r} is not valid; choose one of {list(REPAIR_MODES)}")
@@ -270,6 +278,7 @@ def cmd_import(args: List[str]) -> int:
         entry=opts.pop("entry"),
         entry_direction=opts.pop("entry_direction", None),
         units=str(opts.pop("units", "auto")),
+        frame=frame,
         name=name,
         wall_thickness_m=mm("wall_mm", 2.0),
         edge_length_m=mm("edge_mm", "auto"),
