@@ -39,7 +39,7 @@ The cells:
 
 `report` writes the tables and the figure. With --out pointing at an existing markdown file,
 it replaces only the text between `<!-- paper_tables:NAME -->` and `<!-- /paper_tables:NAME -->`
-(NAME: main, protocol, imitation, force, curves, cost), so the prose around the tables stays.
+(NAME: main, protocol, imitation, force, curves), so the prose around the tables stays.
 --budget tiny runs every cell on a few steps and episodes (tests); a root keeps the budget
 it was started with.
 """
@@ -212,7 +212,7 @@ def _train_args(extra=()):
 
 
 # Wall minutes of a main cell, two at a time: the medians measured 2026-11-27 to 2026-11-29
-# (docs/paper.md#cost). The LCCA records 300 demonstrations and three takeover rounds (the
+# (the cost table of `plan`). The LCCA records 300 demonstrations and three takeover rounds (the
 # ENN takes the rounds on both targets); the ENN's two images cost most.
 MAIN_MINUTES = {
     "internal": {"bca": 17, "lcca": 21},
@@ -662,7 +662,8 @@ def print_plan(plan: Plan, only: list | None, launcher: list) -> None:
         if not info:
             total += cell.minutes
         print(f"{cell.name:40s} {cell.tool:8s} {state(plan, cell):8s} {cell.minutes:5.0f} min  {measured}")
-    print(f"left: about {total / 60:.1f} h of job time (two jobs share the 2 cores)")
+    print(f"left: about {total / 60:.1f} h of job time (two jobs share the 2 cores)\n")
+    print(cost_table(plan), end="")
     chosen = [c for c in plan.cells if not only or any(c.name.startswith(o) for o in only)]
     jobs = launches(plan, ready(plan, chosen))
     if jobs:
@@ -1074,7 +1075,6 @@ SECTIONS = {
     "protocol": protocol_table,
     "imitation": imitation_table,
     "force": force_table,
-    "cost": cost_table,
 }
 
 
