@@ -559,3 +559,55 @@ def test_a_generated_arch_too_large_is_refused_before_any_build(tmp_path):
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and "arch_width_m=5.0 m is larger" in lines[0], result.stderr
     assert not any(tmp_path.iterdir()), "nothing may be written before the error"
+
+
+# -- the front door: what a tool takes from a trained run, and the folders it writes ---------
+
+
+def _one_line(result) -> str:
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip() and "Warning" not in line]
+    assert result.returncode == 2 and len(lines) == 1, result.stderr[-3000:]
+    assert lines[0].startswith("error: ") and "Traceback" not in result.stderr
+    return lines[0]
+
+
+def _aorta(args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.aorta", *args], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
+
+
+def test_an_import_that_cannot_write_its_folder_is_refused_before_any_work(tmp_path):
+    import trimesh
+
+    trimesh.creation.box(extents=(20.0, 20.0, 20.0)).export(tmp_path / "box.stl")  # a closed lumen, in mm
+    _write(tmp_path / "a_file", "a file where a folder would go")
+    args = ["import", "mesh=box.stl", "units=mm", "entry=[0,0,-5]", "sites.bca=[0,0,5]", f"out={tmp_path}/a_file/box"]
+    line = _one_line(_aorta(args, tmp_path))
+    assert f"out='{tmp_path}/a_file/box' cannot be made" in line
+    line = _one_line(_aorta(["build", f"out={tmp_path}/a_file/arch"], tmp_path))
+    assert f"out='{tmp_path}/a_file/arch' cannot be made" in line
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, expected",
+    [
+        ([[0, 0, 0], [10, 0, 0], [0, 10, 0]], [[0, 1, 2]], "1 triangle with an area"),
+        # a flat 2 x 2 grid: enough triangles, but no volume
+        (
+            [[x, y, 0] for y in (0, 10, 20) for x in (0, 10, 20)],
+            [t for i in (0, 1, 3, 4) for t in ([i, i + 1, i + 4], [i, i + 4, i + 3])],
+            "all its vertices lie in one plane",
+        ),
+    ],
+    ids=["one triangle", "flat"],
+)
+def test_a_mesh_that_encloses_no_volume_is_no_vessel_surface(vertices, faces, expected, tmp_path):
+    # It used to be reported as an entry "within 0.4 mm of the surface", after the volume repair.
+    import trimesh
+
+    trimesh.Trimesh(np.array(vertices, float), np.array(faces), process=False).export(tmp_path / "surface.stl")
+    args = ["import", "mesh=surface.stl", "units=mm", "entry=[1,1,0]", "sites.bca=[2,2,0]", f"out={tmp_path}/x"]
+    line = _one_line(_aorta(args, tmp_path))
+    assert "surface.stl: not a closed vessel surface" in line and expected in line
+    assert not (tmp_path / "x").exists()
