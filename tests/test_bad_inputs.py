@@ -611,3 +611,29 @@ def test_a_mesh_that_encloses_no_volume_is_no_vessel_surface(vertices, faces, ex
     line = _one_line(_aorta(args, tmp_path))
     assert "surface.stl: not a closed vessel surface" in line and expected in line
     assert not (tmp_path / "x").exists()
+
+
+def _saved_run(folder, overrides):
+    """A cathsim-train run folder as far as resuming reads it first: its config.yaml."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
+        cfg = compose("train", overrides=overrides)
+    _write(folder / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    return folder
+
+
+def test_resuming_with_a_setting_other_than_the_runs_is_refused_naming_it(tmp_path):
+    run = _saved_run(tmp_path / "run", ["task=lcca", "trainer.total_timesteps=100"])
+    # It used to continue the LCCA run and drop task=bca without a word.
+    line = _one_line(_tool("train", [f"resume={run}", "task=bca"], tmp_path))
+    assert "task=bca (the run has task.target='lcca')" in line and "trainer.total_timesteps" in line
+    line = _one_line(_tool("train", [f"resume={run}", "task=lcca", "seed=3", "algo=sac"], tmp_path))
+    assert "seed=3 (the run has seed=0)" in line and "algo=sac (the run has algo.name='sac_tuned')" in line
+    assert "task=lcca" not in line  # the run's own value is no difference
+    # Its own settings and a larger budget pass the check; this folder then has no checkpoint to resume.
+    line = _one_line(_tool("train", [f"resume={run}", "task=lcca", "trainer.total_timesteps=200"], tmp_path))
+    assert "nothing to resume: no last.zip" in line
