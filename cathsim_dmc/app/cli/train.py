@@ -237,21 +237,9 @@ def main():
     import sys
 
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
     sys.argv[1:] = explicit_algo(resume_in_place(sys.argv[1:]))
-    run_hydra(
-        run,
-        "train",
-        {
-            "task": lambda: TARGETS,
-            "aorta": aorta_choices,
-            "obs": lambda: config_choices("obs"),
-            "algo": lambda: config_choices("algo"),
-            "reward": lambda: config_choices("reward"),
-            "demos": lambda: config_choices("demos"),
-        },
-    )
+    run_hydra(run, "train")
 
 
 if __name__ == "__main__":
