@@ -6,6 +6,7 @@ folder holds nothing but what Hydra writes on start (.hydra/ and the log). The P
 API must raise ValueError or RuntimeError naming the parameter.
 """
 
+import json
 import subprocess
 import sys
 
@@ -104,6 +105,15 @@ CLI_CASES = [
     ("collect", ["seed=abc"], "seed='abc'", True),
     ("collect", ["out={tmp}/a_file.npz"], "a_file.npz", True),
     ("collect", ["out={tmp}/data"], "manifest.json", True),  # {tmp}/data/manifest.json is corrupt
+    # an output folder that cannot be made: a file stands where its parent would be
+    ("collect", ["out={tmp}/a_file.npz/data"], "out='{tmp}/a_file.npz/data' cannot be made", True),
+    # a run folder without the run's checkpoint: another .zip in it is not the agent
+    ("eval", ["policy={tmp}/no_final"], "holds none of checkpoints/best.zip, final_model.zip", True),
+    ("collect", ["policy={tmp}/no_final"], "holds none of checkpoints/best.zip, final_model.zip", True),
+    # the shipped navigator drives the wire alone: a catheter's joints would not fit its observations
+    ("eval", ["policy=pretrained", "task.catheter=angled_5f"], "policy=pretrained was trained without a", True),
+    ("collect", ["policy=pretrained", "task.catheter=angled_5f"], "was trained without a catheter", True),
+    ("eval", ["policy={run}", "task.catheter=angled_5f"], "was trained without a catheter", True),
     # any tool: what Hydra itself refuses (it would print several lines and exit 1)
     ("train", ["trainer.totl_timesteps=5"], "trainer.totl_timesteps", True),
     ("train", ["+task.target_mm=5"], "unknown option task.target_mm", True),  # `+` adds past the schema
@@ -187,7 +197,10 @@ def test_command_line(tool, args, expected, before_work, tmp_path, request):
     _write(tmp_path / "a_file.npz", "an existing file, not a dataset folder")
     _write(tmp_path / "data" / "manifest.json", '{"format": "cathsim-collect", "episodes": ')
     _write(tmp_path / "forces.csv", "step,force_n\n0,0.1\n1,0.2\n")
+    _write(tmp_path / "no_final" / "checkpoints" / "step_20.zip", "a periodic checkpoint, not the run's agent")
+    _write(tmp_path / "no_final" / "policy.json", '{"algo": "sac", "obs": "internal", "task": "bca", "aorta": "type1"}')
     args = [a.format(tmp=tmp_path, run=run) for a in args]
+    expected = expected.format(tmp=tmp_path)
     if tool == "train" and not any(a.startswith("trainer.total_timesteps=") for a in args):
         args.append("trainer.total_timesteps=10")
     out = tmp_path / "out"
@@ -564,3 +577,149 @@ def test_a_generated_arch_too_large_is_refused_before_any_build(tmp_path):
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and "arch_width_m=5.0 m is larger" in lines[0], result.stderr
     assert not any(tmp_path.iterdir()), "nothing may be written before the error"
+
+
+# -- the front door: what a tool takes from a trained run, and the folders it writes ---------
+
+
+def _one_line(result) -> str:
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip() and "Warning" not in line]
+    assert result.returncode == 2 and len(lines) == 1, result.stderr[-3000:]
+    assert lines[0].startswith("error: ") and "Traceback" not in result.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def lcca_run(tmp_path_factory):
+    """A run folder of an (untrained) agent for the LCCA of the type II arch, obs=internal."""
+    from stable_baselines3 import SAC
+
+    from cathsim_dmc.learning.rl.checkpoints import FINAL_MODEL, write_policy_file
+    from cathsim_dmc.suite.gym import CathSimEnv
+
+    run = tmp_path_factory.mktemp("lcca_run")
+    env = CathSimEnv("lcca", "type2", obs="internal", max_steps=5)
+    SAC("MultiInputPolicy", env, buffer_size=10, learning_starts=0, device="cpu").save(run / FINAL_MODEL)
+    env.close()
+    write_policy_file(run, "internal", "lcca", "type2")
+    return run
+
+
+TINY_EVAL = ["episodes=1", "task.max_steps=3", "video=false"]
+
+
+def test_a_run_is_evaluated_on_the_task_and_aorta_it_was_trained_for(lcca_run, tmp_path):
+    # It used to be scored on the default task (the BCA of type I) without a word.
+    result = _tool("eval", [f"policy={lcca_run}", *TINY_EVAL, f"hydra.run.dir={tmp_path}/own"], tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "evaluating on task=lcca aorta=type2 from the run's policy.json" in result.stdout
+    report = json.loads((tmp_path / "own" / "metrics.json").read_text())
+    assert (report["task"], report["aorta"]) == ("lcca", "type2")
+    # A task given on the command line wins (a transfer test); the aorta still comes from the run.
+    result = _tool("eval", [f"policy={lcca_run}", "task=bca", *TINY_EVAL, f"hydra.run.dir={tmp_path}/bca"], tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "evaluating on aorta=type2 from the run's policy.json" in result.stdout
+    report = json.loads((tmp_path / "bca" / "metrics.json").read_text())
+    assert (report["task"], report["aorta"]) == ("bca", "type2")
+
+
+def test_a_run_is_replayed_for_a_dataset_on_its_own_task_and_aorta(lcca_run, tmp_path):
+    out = tmp_path / "data"
+    result = _tool(
+        "collect",
+        [f"policy={lcca_run}", "episodes=1", "task.max_steps=3", "progress_bar=false", f"out={out}"],
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "collecting on task=lcca aorta=type2 from the run's policy.json" in result.stdout
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert (manifest["task"], manifest["aorta"]) == ("lcca", "type2")
+
+
+def test_an_evaluation_that_cannot_write_its_folder_is_refused_before_any_work(tmp_path):
+    _write(tmp_path / "a_file", "a file where a folder would go")
+    result = _tool("eval", ["policy=forward", *TINY_EVAL, f"hydra.run.dir={tmp_path}/a_file/out"], tmp_path)
+    assert "hydra.run.dir=" in _one_line(result) and "a_file is a file, not a folder" in result.stderr
+    assert result.stdout == ""  # not one episode ran
+
+
+def test_an_evaluation_into_a_finished_ones_folder_is_refused_unless_overwrite(tmp_path):
+    out = tmp_path / "eval"
+    first = _tool("eval", ["policy=forward", *TINY_EVAL, f"hydra.run.dir={out}"], tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    kept = {name: (out / name).read_bytes() for name in ("metrics.json", "trajectories.npz", ".hydra/config.yaml")}
+    again = _tool("eval", ["policy=expert", *TINY_EVAL, f"hydra.run.dir={out}"], tmp_path)
+    line = _one_line(again)
+    assert "holds the results of an evaluation (metrics.json, trajectories.npz)" in line and "overwrite=true" in line
+    assert {name: (out / name).read_bytes() for name in kept} == kept  # Hydra's copy of the config too
+    replaced = _tool("eval", ["policy=expert", *TINY_EVAL, "overwrite=true", f"hydra.run.dir={out}"], tmp_path)
+    assert replaced.returncode == 0, replaced.stderr[-3000:]
+    assert json.loads((out / "metrics.json").read_text())["policy"] == "expert"
+
+
+def _aorta(args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "cathsim_dmc.app.cli.aorta", *args], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
+
+
+def test_an_import_that_cannot_write_its_folder_is_refused_before_any_work(tmp_path):
+    import trimesh
+
+    trimesh.creation.box(extents=(20.0, 20.0, 20.0)).export(tmp_path / "box.stl")  # a closed lumen, in mm
+    _write(tmp_path / "a_file", "a file where a folder would go")
+    args = ["import", "mesh=box.stl", "units=mm", "entry=[0,0,-5]", "sites.bca=[0,0,5]", f"out={tmp_path}/a_file/box"]
+    line = _one_line(_aorta(args, tmp_path))
+    assert f"out='{tmp_path}/a_file/box' cannot be made" in line
+    line = _one_line(_aorta(["build", f"out={tmp_path}/a_file/arch"], tmp_path))
+    assert f"out='{tmp_path}/a_file/arch' cannot be made" in line
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, expected",
+    [
+        ([[0, 0, 0], [10, 0, 0], [0, 10, 0]], [[0, 1, 2]], "1 triangle with an area"),
+        # a flat 2 x 2 grid: enough triangles, but no volume
+        (
+            [[x, y, 0] for y in (0, 10, 20) for x in (0, 10, 20)],
+            [t for i in (0, 1, 3, 4) for t in ([i, i + 1, i + 4], [i, i + 4, i + 3])],
+            "all its vertices lie in one plane",
+        ),
+    ],
+    ids=["one triangle", "flat"],
+)
+def test_a_mesh_that_encloses_no_volume_is_no_vessel_surface(vertices, faces, expected, tmp_path):
+    # It used to be reported as an entry "within 0.4 mm of the surface", after the volume repair.
+    import trimesh
+
+    trimesh.Trimesh(np.array(vertices, float), np.array(faces), process=False).export(tmp_path / "surface.stl")
+    args = ["import", "mesh=surface.stl", "units=mm", "entry=[1,1,0]", "sites.bca=[2,2,0]", f"out={tmp_path}/x"]
+    line = _one_line(_aorta(args, tmp_path))
+    assert "surface.stl: not a closed vessel surface" in line and expected in line
+    assert not (tmp_path / "x").exists()
+
+
+def _saved_run(folder, overrides):
+    """A cathsim-train run folder as far as resuming reads it first: its config.yaml."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
+        cfg = compose("train", overrides=overrides)
+    _write(folder / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    return folder
+
+
+def test_resuming_with_a_setting_other_than_the_runs_is_refused_naming_it(tmp_path):
+    run = _saved_run(tmp_path / "run", ["task=lcca", "trainer.total_timesteps=100"])
+    # It used to continue the LCCA run and drop task=bca without a word.
+    line = _one_line(_tool("train", [f"resume={run}", "task=bca"], tmp_path))
+    assert "task=bca (the run has task.target='lcca')" in line and "trainer.total_timesteps" in line
+    line = _one_line(_tool("train", [f"resume={run}", "task=lcca", "seed=3", "algo=sac"], tmp_path))
+    assert "seed=3 (the run has seed=0)" in line and "algo=sac (the run has algo.name='sac_tuned')" in line
+    assert "task=lcca" not in line  # the run's own value is no difference
+    # Its own settings and a larger budget pass the check; this folder then has no checkpoint to resume.
+    line = _one_line(_tool("train", [f"resume={run}", "task=lcca", "trainer.total_timesteps=200"], tmp_path))
+    assert "nothing to resume: no last.zip" in line

@@ -197,6 +197,8 @@ def collect(
     """
     from tqdm import tqdm
 
+    from cathsim_dmc.agents.trained import check_catheter
+    from cathsim_dmc.control.policies import BUILTIN_POLICIES
     from cathsim_dmc.evaluation.rollouts import run_episodes
     from cathsim_dmc.suite.gym import CathSimEnv
 
@@ -210,6 +212,8 @@ def collect(
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out={str(out_dir)!r} is a file; name a dataset folder (new, or one to continue)")
     act, feature_fn, label, policy_images, policy_options = collection_policy(policy, seed, task)
+    if policy not in BUILTIN_POLICIES:  # a trained agent: it drives what it was trained with
+        check_catheter(policy, (task_options or {}).get("catheter"), policy_options)
     images = {**(image_options or {}), **policy_images}
     # A trained agent drives with what it was trained with (insertion limit, extra
     # observations), as cathsim-eval evaluates it.

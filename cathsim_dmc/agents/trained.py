@@ -19,7 +19,7 @@ import numpy as np
 
 from cathsim_dmc.control.policies import BUILTIN_POLICIES
 from cathsim_dmc.control.policies import make_policy as make_builtin_policy
-from cathsim_dmc.core.run_files import POLICY_FILE, is_temporary, load_normalizer, normalizer_path, read_policy_file
+from cathsim_dmc.core.run_files import POLICY_FILE, load_normalizer, normalizer_path, read_policy_file
 from cathsim_dmc.core.shipped import assets_root
 
 
@@ -66,21 +66,22 @@ def find_checkpoint(path) -> Path:
     """The model file for `path`: a checkpoint file itself, or in a run folder the one its
     own final report evaluated: checkpoints/best.zip when the run kept one (and its
     config.yaml does not say trainer.final_policy=final), else the final model, else the
-    newest checkpoint."""
+    last checkpoint of a run that did not finish. A folder with none of these is refused
+    (FileNotFoundError): another .zip in it is not the run's agent."""
     path = Path(path)
     if path.is_file():
         return path
     if path.is_dir():
         best = path / "checkpoints" / "best.zip"
-        if best.is_file() and _final_policy(path) == "best":
-            return best
-        for candidate in (path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"):
+        candidates = [path / "final_model.zip", path / "checkpoints" / "last.zip", path / "bc_policy.pt"]
+        candidates.insert(0 if _final_policy(path) == "best" else len(candidates), best)
+        for candidate in candidates:
             if candidate.is_file():
                 return candidate
-        zips = sorted((p for p in path.glob("**/*.zip") if not is_temporary(p)), key=lambda p: p.stat().st_mtime)
-        if zips:
-            return zips[-1]
-        raise FileNotFoundError(f"no checkpoint (.zip, or bc_policy.pt from cathsim-bc) in {path}")
+        raise FileNotFoundError(
+            f"{path} holds none of checkpoints/best.zip, final_model.zip, checkpoints/last.zip (a cathsim-train "
+            "run) or bc_policy.pt (a cathsim-bc run); for another checkpoint give its file"
+        )
     raise FileNotFoundError(f"no checkpoint at {path}")
 
 
@@ -94,6 +95,44 @@ def _final_policy(run_dir: Path) -> str:
     return str(OmegaConf.select(OmegaConf.load(saved), "trainer.final_policy", default="best"))
 
 
+def policy_info(path) -> tuple[Path, dict]:
+    """(model file, its policy.json) of a checkpoint file or run folder: the observation preset,
+    image and environment options, task and aorta it was trained with. The policy.json is the
+    one beside the model, or in the run folder above it."""
+    model_path = find_checkpoint(path)
+    for folder in (model_path.parent, model_path.parent.parent):
+        info_file = folder / POLICY_FILE
+        if info_file.is_file():
+            try:
+                return model_path, read_policy_file(info_file, what=model_path)
+            except json.JSONDecodeError as error:
+                raise ValueError(f"{info_file} is not readable JSON ({error})") from None
+    raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+
+
+def recorded_env_options(name: str, task: str | None = None) -> dict | None:
+    """The environment options a trained agent records (its policy.json, or the shipped
+    navigator's metadata for `task`), read without loading it; None for a built-in policy."""
+    if name in BUILTIN_POLICIES:
+        return None
+    if name == PRETRAINED and not Path(name).exists():
+        meta = policy_files(task)[1] if task else None
+        if meta is None or not meta.is_file():
+            return None  # no navigator for the task: load_pretrained says so
+        return json.loads(meta.read_text()).get("env_options") or {}
+    return policy_info(name)[1].get("env_options") or {}
+
+
+def check_catheter(policy_name: str, catheter, env_options: dict) -> None:
+    """ValueError when a catheter is asked of an agent trained without one: it sees and drives
+    the guidewire alone, and the catheter's joints would not fit its observations."""
+    if catheter and not env_options.get("catheter"):
+        raise ValueError(
+            f"task.catheter={catheter!r}, but policy={policy_name} was trained without a catheter (it drives the "
+            f"guidewire alone; its options: {dict(env_options)}); leave task.catheter out"
+        )
+
+
 def load_checkpoint_policy(path) -> CheckpointPolicy:
     """Load a checkpoint written by cathsim-train (or cathsim-bc).
 
@@ -101,14 +140,7 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
     the observation preset the agent was trained with. A checkpoint of another version's
     run format fails in one line (ValueError, `run_files.read_policy_file`).
     """
-    model_path = find_checkpoint(path)
-    info = None
-    for folder in (model_path.parent, model_path.parent.parent):
-        if (folder / POLICY_FILE).is_file():
-            info = read_policy_file(folder / POLICY_FILE, what=model_path)
-            break
-    if info is None:
-        raise FileNotFoundError(f"{model_path} has no {POLICY_FILE} beside it; was it written by cathsim-train?")
+    model_path, info = policy_info(path)
     algo = info.get("algo", "sac")
     try:
         if algo == "sac":

@@ -76,7 +76,7 @@ from cathsim_dmc.anatomy.import_error import MeshImportError, format_point
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.lumen import FoldedSurfaceError
 from cathsim_dmc.anatomy.mesh_grid import check_grid_memory, mesh_sdf_grid
-from cathsim_dmc.anatomy.mesh_repair import detect_units, read_lumen, repair_lumen
+from cathsim_dmc.anatomy.mesh_repair import check_encloses_volume, detect_units, read_lumen, repair_lumen
 from cathsim_dmc.anatomy.open_end import build_open_lumen, triangle_stats
 from cathsim_dmc.anatomy.polyline import polyline_length, resample_polyline
 from cathsim_dmc.anatomy.sdf import signed_distance, unsigned_distance
@@ -89,6 +89,7 @@ from cathsim_dmc.anatomy.validate import (
 )
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
 from cathsim_dmc.anatomy.wall import extrude_prisms
+from cathsim_dmc.core.run_files import check_writable_folder
 
 MIN_SITE_DEPTH_M = 0.001
 DEFAULT_EDGE_M = 0.004  # level-set edge of the generator: mean edges come out ~2.3 mm
@@ -218,6 +219,7 @@ def import_mesh(
         raise ValueError(f"remesh={remesh!r} is not valid; choose one of ['auto', true, false]")
     if not 0.0002 <= wall_thickness_m <= 0.01:
         raise ValueError(f"wall thickness {wall_thickness_m * 1e3:g} mm is not valid; use 0.2-10 mm")
+    check_writable_folder("out", out)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise ValueError(f"out={str(out)!r} exists and is not empty; pass overwrite=true or another out")
 
@@ -227,6 +229,7 @@ def import_mesh(
         v, f = np.concatenate([v, cv]), np.concatenate([f, cf + len(v)])
     v = to_sim(v, frame)
     shown = (lambda p: from_sim(p, frame)) if frame != SIM_FRAME else np.asarray  # messages: the mesh's frame
+    check_encloses_volume(v, f, path)
     scale, units_used, note = detect_units(v, units, path)
     notes = [note] if note else []
     if frame != SIM_FRAME:

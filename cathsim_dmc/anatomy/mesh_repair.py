@@ -34,6 +34,26 @@ def read_lumen(path) -> "tuple[np.ndarray, np.ndarray]":
     return v, f
 
 
+def check_encloses_volume(v, f, path) -> None:
+    """MeshImportError when the triangles cannot be a vessel's closed surface, whatever the
+    repairs: fewer than 4 triangles with an area, or every vertex in one plane (no volume).
+    Checked before the costly steps, whose own errors would blame the entry or the sites."""
+    v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    usable = int(np.count_nonzero(area > 0))
+    if usable < 4:
+        raise MeshImportError(
+            f"{path}: not a closed vessel surface: {usable} triangle{'s' * (usable != 1)} with an area, "
+            "and a closed surface needs at least 4 enclosing a volume (is it the lumen's whole surface?)"
+        )
+    used = v[np.unique(f)]
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(used.T)), 0.0))  # along its principal axes
+    if spread[0] <= 1e-9 * spread[-1]:
+        raise MeshImportError(
+            f"{path}: not a closed vessel surface: all its vertices lie in one plane, so it encloses no volume"
+        )
+
+
 def repair_lumen(v, f, path, units_label="units", shown=np.asarray) -> "tuple[np.ndarray, np.ndarray, List[str]]":
     """Safe repairs; MeshImportError when the surface cannot be made a closed 2-manifold. Its
     messages show a point `p` as `shown(p)` (the importer's map back into the mesh's frame)."""

@@ -44,6 +44,7 @@ class EvalConfig(ScenarioConfig):
     video_size: int = _set(1, whole=True)  # its upper bound depends on the renderer (check_render_size)
     video_format: str = _set(choices=VIDEO_FORMATS)
     save_observations: bool = MISSING
+    overwrite: bool = MISSING
 
 
 @dataclass

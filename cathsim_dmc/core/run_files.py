@@ -120,6 +120,29 @@ class FolderInUse(RuntimeError):
     """Another live process writes into the folder (its .lock names it)."""
 
 
+def check_writable_folder(key: str, folder) -> Path:
+    """`folder` (an output folder, new or existing) or a ValueError naming `key=folder` when it
+    cannot be written: a file is there, a file stands where a parent folder would go, or the
+    nearest existing folder refuses a file (permissions, a read-only file system). Nothing is
+    left behind: the test file is anonymous."""
+    import tempfile
+
+    folder = Path(folder).expanduser()
+    given = f"{key}={str(folder)!r}"
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{given} is a file; give a folder (new or existing)")
+    existing = next(p for p in (folder.absolute(), *folder.absolute().parents) if p.exists())
+    if not existing.is_dir():
+        raise ValueError(f"{given} cannot be made: {existing} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        what = "written" if existing == folder.absolute() else f"made in {existing}"
+        raise ValueError(f"{given} cannot be {what} ({error.strerror or error})") from None
+    return folder
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

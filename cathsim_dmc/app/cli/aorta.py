@@ -135,6 +135,7 @@ def cmd_build(args: List[str]) -> int:
         sample_arch_params,
         with_arch_type,
     )
+    from cathsim_dmc.core.run_files import check_writable_folder
 
     opts = parse_pairs(args)
     fields = {f.name for f in dataclasses.fields(ArchParams)} - {"name", "arch_type", "seed"}
@@ -171,7 +172,7 @@ def cmd_build(args: List[str]) -> int:
         folder = generated_asset(params)
         print(f"cached in {folder}")
     else:
-        folder = pathlib.Path(str(out))
+        folder = check_writable_folder("out", pathlib.Path(str(out)))
         if folder.exists() and any(folder.iterdir()) and not overwrite:
             fail(f"out={str(folder)!r} exists and is not empty; pass overwrite=true or another out")
         folder.parent.mkdir(parents=True, exist_ok=True)

@@ -154,9 +154,8 @@ def _fmt(terms: dict) -> str:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
-    run_hydra(run, "bc", {"task": lambda: TARGETS, "aorta": aorta_choices})
+    run_hydra(run, "bc")
 
 
 if __name__ == "__main__":

@@ -188,9 +188,8 @@ def run(cfg) -> list:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS
 
-    run_hydra(run, "bench", {"task": lambda: TARGETS})
+    run_hydra(run, "bench")
 
 
 if __name__ == "__main__":

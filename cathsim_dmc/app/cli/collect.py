@@ -64,20 +64,8 @@ def run(cfg) -> dict:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.control.policies import BUILTIN_POLICIES
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
-    run_hydra(
-        run,
-        "collect",
-        {
-            "task": lambda: TARGETS,
-            "aorta": aorta_choices,
-            "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]),
-            "obs": lambda: config_choices("obs"),
-        },
-        paths_allowed=("policy",),
-    )
+    run_hydra(run, "collect", policy_verb="collecting")
 
 
 if __name__ == "__main__":

@@ -68,20 +68,8 @@ def evaluate(cfg) -> dict:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.control.policies import BUILTIN_POLICIES
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
-    run_hydra(
-        evaluate,
-        "eval",
-        {
-            "task": lambda: TARGETS,
-            "aorta": aorta_choices,
-            "policy": lambda: sorted([*BUILTIN_POLICIES, "pretrained"]),
-            "obs": lambda: config_choices("obs"),
-        },
-        paths_allowed=("policy",),
-    )
+    run_hydra(evaluate, "eval", policy_verb="evaluating")
 
 
 if __name__ == "__main__":

@@ -32,9 +32,8 @@ def export(cfg) -> Path:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
-    run_hydra(export, "export", {"task": lambda: TARGETS, "aorta": aorta_choices})
+    run_hydra(export, "export")
 
 
 if __name__ == "__main__":

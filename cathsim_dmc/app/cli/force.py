@@ -94,9 +94,8 @@ def run(cfg) -> dict:
 
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
-    run_hydra(run, "force", {"task": lambda: TARGETS, "aorta": aorta_choices})
+    run_hydra(run, "force")
 
 
 if __name__ == "__main__":

@@ -227,7 +227,7 @@ def run(cfg) -> dict:
 def main():
     from cathsim_dmc.app.cli._common import run_hydra
 
-    run_hydra(run, "forcecheck", {})
+    run_hydra(run, "forcecheck")
 
 
 if __name__ == "__main__":

@@ -90,11 +90,10 @@ def teleop(cfg) -> dict | None:
 
 def main():
     from cathsim_dmc.app.cli._common import fail, run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
     if not has_display():
         fail(NO_DISPLAY)
-    run_hydra(teleop, "teleop", {"task": lambda: TARGETS, "aorta": aorta_choices})
+    run_hydra(teleop, "teleop")
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ def run(cfg) -> dict:
         original = resumed_config(run_dir)
         if any(o.startswith("trainer.total_timesteps=") for o in HydraConfig.get().overrides.task):
             original.trainer.total_timesteps = cfg.trainer.total_timesteps
+        check_resume_overrides(resume, original, cfg, HydraConfig.get().overrides.task)
         cfg = original
 
     # Every setting is checked before the run folder, an environment or a model exists.
@@ -139,6 +140,72 @@ def run(cfg) -> dict:
     return report
 
 
+# What a resumed run takes from the command line: a larger step budget (docs/cli.md).
+RESUME_MAY_CHANGE = ("trainer.total_timesteps",)
+
+
+def check_resume_overrides(resume, saved, cfg, overrides) -> None:
+    """ValueError naming each `key=value` of the command line (`overrides`, Hydra's) that
+    differs from the resumed run's saved config (`saved`; `cfg`: the command line's
+    composition), but for RESUME_MAY_CHANGE: the run continues with its own settings, and
+    an override it dropped would go unnoticed. A config group chosen (`task=bca`) is
+    compared by the keys it sets (`_group_keys`)."""
+    from omegaconf import OmegaConf
+
+    def plain(node):
+        return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
+
+    differ = []
+    for override in overrides:
+        key, sep, _ = override.lstrip("+").partition("=")
+        if not sep or override.startswith("~") or key in ("resume", *RESUME_MAY_CHANGE):
+            continue
+        for compared in _group_keys(cfg, key, override.split("=", 1)[1]) or [key]:
+            theirs = plain(OmegaConf.select(saved, compared))
+            if compared not in RESUME_MAY_CHANGE and plain(OmegaConf.select(cfg, compared)) != theirs:
+                differ.append(f"{override} (the run has {compared}={theirs!r})")
+                break
+    if differ:
+        raise ValueError(
+            f"resume={resume} continues the run with its own config.yaml, which differs from the command line in "
+            f"{', '.join(differ)}; leave them out (a resumed run takes only {', '.join(RESUME_MAY_CHANGE)}) or "
+            "start a new run"
+        )
+
+
+def _group_keys(cfg, group: str, option: str) -> list:
+    """The keys that choosing `group=option` (a conf/ group) sets, [] if `group` is none: the
+    one naming the option (task.target, obs.name, or the whole section when none does), and
+    for a group of the global package (+experiment=) every key its file sets."""
+    import yaml
+
+    from cathsim_dmc.core.shipped import conf_root
+
+    path = conf_root() / group / f"{option}.yaml"
+    if not (conf_root() / group).is_dir():
+        return []
+    text = path.read_text() if path.is_file() else ""
+    if "@package _global_" not in text:
+        section = cfg.get(group)
+        named = [f"{group}.{name}" for name in ("target", "name") if section is not None and name in section]
+        return named[:1] or [group]
+    body = yaml.safe_load(text) or {}
+    keys = []
+    for entry in body.pop("defaults", []):  # `override /obs: roadmap`: the groups it picks
+        for name, picked in entry.items() if isinstance(entry, dict) else ():
+            keys += _group_keys(cfg, name.replace("override", "").strip().strip("/"), str(picked))
+
+    def leaves(node, prefix):
+        for name, value in node.items():
+            if isinstance(value, dict):
+                leaves(value, f"{prefix}{name}.")
+            else:
+                keys.append(f"{prefix}{name}")
+
+    leaves(body, "")
+    return keys
+
+
 def resume_in_place(argv: list) -> list:
     """`resume=<run>` continues in the run's own folder: Hydra's log of the resumed part
     goes there too (appended), unless the command line names another hydra.run.dir. The
@@ -171,21 +238,9 @@ def main():
     import sys
 
     from cathsim_dmc.app.cli._common import run_hydra
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices, config_choices
 
     sys.argv[1:] = explicit_algo(resume_in_place(sys.argv[1:]))
-    run_hydra(
-        run,
-        "train",
-        {
-            "task": lambda: TARGETS,
-            "aorta": aorta_choices,
-            "obs": lambda: config_choices("obs"),
-            "algo": lambda: config_choices("algo"),
-            "reward": lambda: config_choices("reward"),
-            "demos": lambda: config_choices("demos"),
-        },
-    )
+    run_hydra(run, "train")
 
 
 if __name__ == "__main__":

@@ -86,14 +86,13 @@ def view(cfg) -> None:
 def main():
     from cathsim_dmc.app.cli._common import fail, run_hydra
     from cathsim_dmc.app.cli.teleop import has_display
-    from cathsim_dmc.core.registry import TARGETS, aorta_choices
 
     if not has_display():
         fail(
             "no display: cathsim-view opens a window; run it under a virtual one with "
             'xvfb-run -s "-screen 0 1024x768x24" cathsim-view ...'
         )
-    run_hydra(view, "view", {"task": lambda: TARGETS, "aorta": aorta_choices})
+    run_hydra(view, "view")
 
 
 if __name__ == "__main__":
