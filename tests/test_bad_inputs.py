@@ -700,15 +700,18 @@ def test_a_mesh_that_encloses_no_volume_is_no_vessel_surface(vertices, faces, ex
 
 
 def _saved_run(folder, overrides):
-    """A cathsim-train run folder as far as resuming reads it first: its config.yaml."""
+    """A cathsim-train run folder as far as resuming reads it first: its config.yaml and the
+    run format of its policy.json."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    from cathsim_dmc.core.run_files import FORMAT_KEY, POLICY_FILE, RUN_FORMAT
     from cathsim_dmc.core.shipped import conf_root
 
     with initialize_config_dir(config_dir=str(conf_root()), version_base="1.3"):
         cfg = compose("train", overrides=overrides)
     _write(folder / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    _write(folder / POLICY_FILE, json.dumps({FORMAT_KEY: RUN_FORMAT, "algo": "sac", "obs": "internal"}))
     return folder
 
 
