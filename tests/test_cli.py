@@ -211,3 +211,12 @@ def test_an_aorta_that_is_no_asset_folder_is_one_line_and_exit_2(tmp_path, value
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and reason in lines[0] and "type1" in lines[0]
+
+
+def test_resume_continues_in_the_run_folder_and_a_sweep_of_resumes_is_left_to_hydra():
+    from cathsim_dmc.app.cli.train import resume_in_place
+
+    assert resume_in_place(["resume=/r/a"]) == ["resume=/r/a", "hydra.run.dir=/r/a", "hydra.output_subdir=null"]
+    assert resume_in_place(["resume=/r/a", "hydra.run.dir=/x"]) == ["resume=/r/a", "hydra.run.dir=/x"]
+    # hydra.run.dir=/r/a,/r/b would be a sweep over Hydra's own config, which Hydra refuses.
+    assert resume_in_place(["-m", "resume=/r/a,/r/b"]) == ["-m", "resume=/r/a,/r/b"]

@@ -209,7 +209,11 @@ def _group_keys(cfg, group: str, option: str) -> list:
 def resume_in_place(argv: list) -> list:
     """`resume=<run>` continues in the run's own folder: Hydra's log of the resumed part
     goes there too (appended), unless the command line names another hydra.run.dir. The
-    run's config.yaml is its config; Hydra's copy of the resumed invocation is not kept."""
+    run's config.yaml is its config; Hydra's copy of the resumed invocation is not kept. A
+    multirun (`-m resume=a,b`) is left as it is: each job continues its own run folder, and
+    Hydra keeps the jobs' logs in the sweep's folders (hydra.run.dir is no sweep option)."""
+    if "-m" in argv or "--multirun" in argv:
+        return list(argv)
     resume = [arg.split("=", 1)[1] for arg in argv if arg.startswith("resume=")]
     if resume and resume[-1] not in ("", "null") and not any(a.startswith("hydra.run.dir=") for a in argv):
         return [*argv, f"hydra.run.dir={resume[-1]}", "hydra.output_subdir=null"]
