@@ -264,13 +264,16 @@ def import_mesh(
     tree = None
 
     def check_given_sites(grid):
-        """Given sites named bca/lcca/lsa must lie in the branches of those names."""
+        """Given sites named bca/lcca/lsa must lie in the branches of those names (when all three are
+        found: two could be any two of them)."""
         if not sites:
             return
         try:
             found = tree or find_arch(grid)
-        except ArchError:
+        except (ArchError, ValueError, IndexError):
             return  # nothing to check against: the given sites win
+        if len(found.branches) < 3:
+            return
         bad = swapped_site(found, {k: p for k, p in sites_m.items() if k in sites_in})
         if bad:
             given_at = format_point(sites_in[bad[0]], digits=4 if units_used == "m" else 1)
