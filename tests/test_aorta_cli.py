@@ -180,8 +180,8 @@ def test_site_outside_the_lumen_is_refused(type1_mm_stl, tmp_path):
     print(assert_one_line_error(proc, "sites.bca=[0.0, 200.0, 0.0] mm is outside the lumen"))
     proc = run("import", f"mesh={stl}", "entry=[0,0,0]", "sites.bca=[0,200,0]", "units=furlongs")
     print(assert_one_line_error(proc, "units='furlongs' is not valid", "mm"))
-    proc = run("import", f"mesh={stl}", "sites.bca=[0,200,0]")
-    print(assert_one_line_error(proc, "import needs entry="))
+    proc = run("import", f"mesh={stl}", "sites.bca=[0,200,0]", "sites=frobnicate")
+    print(assert_one_line_error(proc, "sites='frobnicate' is not valid", "sites=auto"))
 
 
 def test_bad_crop_caps_and_frame_values_are_refused_before_any_work(type1_mm_stl, tmp_path):

@@ -18,8 +18,9 @@ _OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)]) - 1
 _OFFSETS = _OFFSETS[[tuple(o) > (0, 0, 0) for o in _OFFSETS]]  # 13 of the 26 neighbours
 
 
-def _grid_graph(grid: SDFGrid, clearance: float):
-    """Sparse graph over grid nodes at least `clearance` inside the lumen; weights length / depth^2."""
+def _grid_graph(grid: SDFGrid, clearance: float, power: int = 2):
+    """Sparse graph over grid nodes at least `clearance` inside the lumen; weights length / depth^power
+    (power=0: plain lengths)."""
     depth = -grid.values
     ok = depth >= clearance
     ids = -np.ones(depth.shape, dtype=np.int64)
@@ -38,7 +39,7 @@ def _grid_graph(grid: SDFGrid, clearance: float):
         length = grid.spacing * float(np.linalg.norm(o))
         rows.append(a)
         cols.append(b)
-        w.append(length * (grid.spacing / dm) ** 2)
+        w.append(length * (grid.spacing / dm) ** power if power else np.full(len(a), length))
     rows, cols, w = (np.concatenate(x) for x in (rows, cols, w))
     graph = sparse.coo_matrix((w, (rows, cols)), shape=(len(where), len(where))).tocsr()
     return graph, grid.origin + grid.spacing * where

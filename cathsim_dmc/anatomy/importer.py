@@ -69,6 +69,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 import numpy as np
 
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
+from cathsim_dmc.anatomy.branches import FIND_SPACING_M, HOW, ArchError, find_arch, swap_message, swapped_site
 from cathsim_dmc.anatomy.centerlines import estimate_entry_direction, lumen_centerlines
 from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around
 from cathsim_dmc.anatomy.frames import SIM_FRAME, frame_rotation, from_sim, sim_axes, to_sim, to_sim_matrix
@@ -169,8 +170,8 @@ def import_mesh(
     mesh_path,
     out,
     *,
-    sites: Mapping[str, Sequence[float]],
-    entry: Sequence[float],
+    sites: Optional[Mapping[str, Sequence[float]]] = None,
+    entry: Optional[Sequence[float]] = None,
     entry_direction: Optional[Sequence[float]] = None,
     units: str = "auto",
     frame: str = SIM_FRAME,
@@ -198,11 +199,10 @@ def import_mesh(
     path = pathlib.Path(mesh_path)
     out = pathlib.Path(out)
     name = name or path.stem
-    if not sites:
-        raise ValueError("give at least one site, e.g. sites.bca=[x,y,z]")
     frame_rotation(frame)  # ValueError naming the frames
-    entry_in = _vec(entry, "entry")
-    sites_in = {str(k): _vec(p, f"sites.{k}") for k, p in sites.items()}
+    auto = entry is None or not sites  # found from the lumen's centerline tree (`branches`)
+    entry_in = None if entry is None else _vec(entry, "entry")
+    sites_in = {str(k): _vec(p, f"sites.{k}") for k, p in (sites or {}).items()}
     dir_in = None if entry_direction is None else _vec(entry_direction, "entry_direction")
     if dir_in is not None and np.linalg.norm(dir_in) == 0:
         raise ValueError("entry_direction must not be [0, 0, 0]")
@@ -247,10 +247,8 @@ def import_mesh(
             f"{path}: spans {extent_m:.3g} m with units={units_used}, more than any aorta "
             f"({MAX_EXTENT_M:g} m at most); pass the right units= or rescale the mesh"
         )
-    entry_m = to_sim(entry_in, frame) * scale
+    entry_m = None if entry_in is None else to_sim(entry_in, frame) * scale
     sites_m = {k: to_sim(p, frame) * scale for k, p in sites_in.items()}
-    labels = ["entry"] + [f"sites.{k}" for k in sites_m]
-    given = [entry_in] + list(sites_in.values())
 
     def check_depths(depth):
         for lab, d, p in zip(labels, depth, given):
@@ -265,6 +263,27 @@ def import_mesh(
 
     use_volume = repair == "volume"
     repairs: List[str] = []
+    closed = None  # the repaired closed surface (mesh units), for finding the sites
+    tree = None
+
+    def check_given_sites(grid):
+        """Given sites named bca/lcca/lsa must lie in the branches of those names (when all three are
+        found: two could be any two of them)."""
+        if not sites:
+            return
+        try:
+            found = tree or find_arch(grid)
+        except (ArchError, ValueError, IndexError):
+            return  # nothing to check against: the given sites win
+        if len(found.branches) < 3:
+            return
+        bad = swapped_site(found, {k: p for k, p in sites_m.items() if k in sites_in})
+        if bad:
+            given_at = format_point(sites_in[bad[0]], digits=4 if units_used == "m" else 1)
+            raise MeshImportError(f"{path}: {swap_message(bad[0], bad[1], found, given_at)}")
+        if found.trunk and found.notes()[-1] not in notes:
+            notes.append(found.notes()[-1])
+            log(f"note: {notes[-1]}")
 
     def crop_lumen(grid, centerlines):
         if crop != "auto":
@@ -281,6 +300,8 @@ def import_mesh(
         except MeshImportError as exc:
             if repair == "surface":
                 raise
+            if auto:
+                raise MeshImportError(f"{exc}; finding the sites needs a surface the repair closes: {HOW}") from None
             reason = str(exc).split(": ", 1)[-1]
             notes.append(
                 f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume (repair=volume)"
@@ -288,6 +309,7 @@ def import_mesh(
             log(f"note: {notes[-1]}")
             use_volume = True
         else:
+            closed = (v_closed, f_closed)
             if repair == "auto" and len(f_closed) > AUTO_SURFACE_MAX_TRIANGLES:
                 # A segmentation export: exact distances to every triangle cost minutes, and its
                 # noise folds the remeshed surface; the volume smooths it.
@@ -300,6 +322,30 @@ def import_mesh(
                 repairs = []  # made to the surface, which the volume does not use
             else:
                 v, f = v_closed, f_closed
+    if auto:
+        if closed is None:
+            raise MeshImportError(f"{path}: finding the sites needs a surface the repair closes; {HOW}")
+        cv = closed[0] * scale
+        try:
+            tree = find_arch(mesh_sdf_grid(cv, closed[1], FIND_SPACING_M, pad=0.004))
+        except ArchError as exc:
+            raise MeshImportError(f"{path}: {exc}") from None
+        if entry_m is None:
+            entry_m = tree.entry
+            entry_in = from_sim(entry_m / scale, frame)
+        if not sites_m:
+            sites_m = tree.sites()
+            sites_in = {k: from_sim(p / scale, frame) for k, p in sites_m.items()}
+        digits = 4 if units_used == "m" else 1
+        where = ", ".join(
+            [f"entry={format_point(entry_in, digits=digits)}"]
+            + [f"sites.{k}={format_point(p, digits=digits)}" for k, p in sites_in.items()]
+        )
+        notes.extend([f"{tree.found}: {where} {units_used}"] + tree.notes()[1:])
+        for n_ in notes[-len(tree.notes()) :]:
+            log(f"note: {n_}")
+    labels = ["entry"] + [f"sites.{k}" for k in sites_m]
+    given = [entry_in] + list(sites_in.values())
     points = np.concatenate([[entry_m], list(sites_m.values())])
     if use_volume:
         import trimesh
@@ -324,6 +370,7 @@ def import_mesh(
             )
         except VolumeError as exc:
             raise MeshImportError(f"{path}: {exc}") from None
+        check_given_sites(grid)
         for n_ in vnotes:
             repairs.append(n_)
             log(f"repair: {path}: {n_}")
@@ -350,6 +397,7 @@ def import_mesh(
         h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(0.25 * float(depth.min()), 0.0004, 0.001))
         check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
         grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
+        check_given_sites(grid)
         centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
         grid = crop_lumen(grid, centerlines)
     # Checked before the (slow) remesh, with the radii of the lumen as given (from the grid: exact near
@@ -429,8 +477,8 @@ def import_mesh(
                 return import_mesh(
                     mesh_path,
                     out,
-                    sites=sites,
-                    entry=entry,
+                    sites=sites_in,  # found ones too: the volume has no closed surface to find them on
+                    entry=entry_in,
                     entry_direction=entry_direction,
                     units=units,
                     frame=frame,
@@ -487,6 +535,7 @@ def import_mesh(
         "entry": json_rounded(entry_in),
         "entry_direction": None if dir_in is None else json_rounded(dir_in),
         "sites": {k: json_rounded(p) for k, p in sorted(sites_in.items())},
+        **({"sites_found": "auto"} if auto else {}),
         "wall_thickness_m": wall_thickness_m,
         "edge_length_m": edge,
         "sdf_spacing_m": h,

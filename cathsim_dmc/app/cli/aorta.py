@@ -20,7 +20,9 @@ build: `preset` (default type1) is the starting point; `arch_type=1|2|3` turns i
   $CATHSIM_DMC_CACHE/aortas). `validate=false` skips the checks.
 
 import: `mesh=FILE` (STL/OBJ lumen surface), `entry=[x,y,z]` and one or more
-  `sites.NAME=[x,y,z]`, all in the mesh's units and frame; optional `entry_direction=[x,y,z]`
+  `sites.NAME=[x,y,z]`, all in the mesh's units and frame; without them (`sites=auto`, the
+  default) the entry and sites.bca/lcca/lsa are found from the lumen's centerline tree, and
+  given ones are checked against the branches found; optional `entry_direction=[x,y,z]`
   (else estimated from the lumen), `units=auto|mm|m`, `frame=sim|LPS|RAS` (the mesh's
   axes; `sim`, the default, is x patient left, y superior, z anterior; CT and 3D Slicer
   exports are LPS), `name=`, `out=DIR`
@@ -56,6 +58,7 @@ BUILD_KEYS = ("preset", "arch_type", "seed", "name", "out", "validate", "overwri
 IMPORT_KEYS = (
     "mesh",
     "entry",
+    "sites",
     "entry_direction",
     "units",
     "frame",
@@ -218,11 +221,11 @@ def cmd_import(args: List[str]) -> int:
     unknown = sorted(set(opts) - set(IMPORT_KEYS))
     if unknown:
         fail(f"unknown key(s) {unknown} for import; valid: {list(IMPORT_KEYS)} and sites.NAME")
-    for key in ("mesh", "entry"):
-        if key not in opts:
-            fail(f"import needs {key}=...; e.g. cathsim-aorta import mesh=lumen.stl entry=[x,y,z] sites.bca=[x,y,z]")
-    if not sites:
-        fail("import needs at least one site: sites.NAME=[x,y,z] (e.g. sites.bca=[...], sites.lcca=[...])")
+    if "mesh" not in opts:
+        fail("import needs mesh=...; e.g. cathsim-aorta import mesh=lumen.stl (entry=[x,y,z] sites.bca=[x,y,z])")
+    if opts.get("sites", "auto") != "auto" or (sites and "sites" in opts):
+        fail(f"sites={opts['sites']!r} is not valid; give sites=auto (the default) or sites.NAME=[x,y,z]")
+    opts.pop("sites", None)
     mesh = pathlib.Path(str(opts.pop("mesh")))
     name = str(opts.pop("name", mesh.stem))
     out = pathlib.Path(str(opts.pop("out", name)))
@@ -275,8 +278,8 @@ def cmd_import(args: List[str]) -> int:
     report = import_mesh(
         mesh,
         out,
-        sites=sites,
-        entry=opts.pop("entry"),
+        sites=sites or None,
+        entry=opts.pop("entry", None),
         entry_direction=opts.pop("entry_direction", None),
         units=str(opts.pop("units", "auto")),
         frame=frame,
