@@ -37,8 +37,8 @@ def test_network_learns_a_synthetic_image_to_force_relation(tmp_path):
     torch.set_num_threads(1)
     images, force, episodes = _synthetic()
     cfg = ForceConfig(
-        sizes=(40, 190), epochs=1, min_updates=250, batch_size=16, test_fraction=0.2, val_fraction=0.1, seed=0
-    )
+        sizes=(40, 190), epochs=1, min_updates=150, batch_size=16, test_fraction=0.2, val_fraction=0.1, seed=0
+    )  # measured test MSE: 0.033 N^2 (40 samples), 0.011 (190), train mean 0.37, before fine-tuning 1.12
     report = train_force_sizes(images, force, episodes, cfg, out_dir=tmp_path)
     small, large = report["sizes"]
     assert report["test_episodes"] == 5 and large["train_samples"] == 190
