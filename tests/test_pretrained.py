@@ -50,7 +50,6 @@ def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, re
             "task=lcca",
             f"aorta={repo_root / 'assets' / 'type3'}",
             "episodes=1",
-            "task.max_steps=20",  # that it runs on the folder: its success is measured in docs/training.md
             "video=false",
             f"hydra.run.dir={tmp_path}",
         ],
@@ -62,7 +61,6 @@ def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, re
     assert proc.returncode == 0, proc.stderr
     report = json.loads((tmp_path / "metrics.json").read_text())
     assert report["policy"] == "pretrained" and report["task"] == "lcca" and len(report["episodes"]) == 1
-    assert report["summary"]["episode_length"]["mean"] <= 20
 
 
 def test_a_target_without_a_shipped_navigator_is_refused_in_one_line(tmp_path):
