@@ -9,6 +9,7 @@ measured numbers.
 """
 
 import dataclasses
+import functools
 import importlib.util
 import json
 import pathlib
@@ -45,15 +46,30 @@ EXPECTED_TYPE = {
     "type3_oblique": "III",
 }
 
+
+class _Shipped:
+    """A shipped asset, its HullSet and its validation report, each computed on first use (once
+    per test process): the validation takes seconds, and only its own test reads the report."""
+
+    def __init__(self, name):
+        self.asset = load_asset(ASSETS / name)
+
+    @functools.cached_property
+    def hulls(self):
+        return HullSet(self.asset.hulls)
+
+    @functools.cached_property
+    def report(self):
+        return validate_and_compile(self.asset, hullset=self.hulls)
+
+
 _cache = {}
 
 
 def shipped(name):
-    """Loaded asset, its HullSet and its validation report (computed once per test run)."""
+    """`shipped(name).asset`, `.hulls`, `.report`: the loaded asset, its HullSet, its validation."""
     if name not in _cache:
-        asset = load_asset(ASSETS / name)
-        hulls = HullSet(asset.hulls)
-        _cache[name] = (asset, hulls, validate_and_compile(asset, hullset=hulls))
+        _cache[name] = _Shipped(name)
     return _cache[name]
 
 
@@ -83,7 +99,7 @@ def test_every_preset_is_shipped_with_a_config():
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_asset_passes_validation(name):
-    asset, _, report = shipped(name)
+    report = shipped(name).report
     print("\n" + report.summary())
     assert report.ok, report.problems
     assert report.holes == 0
@@ -96,7 +112,7 @@ def test_shipped_asset_passes_validation(name):
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_lumen_watertight_outward_and_clean(name):
-    asset = shipped(name)[0]
+    asset = shipped(name).asset
     lumen = trimesh_of(asset)
     cap = cap_faces(asset)
     assert lumen.is_watertight and lumen.is_winding_consistent
@@ -118,7 +134,7 @@ def test_lumen_watertight_outward_and_clean(name):
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_hulls_are_nondegenerate_prisms(name):
-    asset, hulls, _ = shipped(name)
+    asset, hulls = shipped(name).asset, shipped(name).hulls
     cap = cap_faces(asset)
     assert np.all(np.diff(asset.hull_offsets) == 6)
     tri = asset.visual_vertices[asset.visual_faces[~cap]].astype(np.float64)
@@ -130,7 +146,7 @@ def test_hulls_are_nondegenerate_prisms(name):
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_arch_type_class_and_landmarks(name):
-    asset = shipped(name)[0]
+    asset = shipped(name).asset
     meta = asset.meta
     ratio = asset.arch_type_distance_m / asset.cca_diameter_m
     print(
@@ -161,8 +177,8 @@ def test_arch_type_class_and_landmarks(name):
 
 
 def test_tortuosity_of_low_tortuosity_is_lower_than_type1():
-    t1 = shipped("type1")[0].meta["tortuosity"]
-    lo = shipped("low_tortuosity")[0].meta["tortuosity"]
+    t1 = shipped("type1").asset.meta["tortuosity"]
+    lo = shipped("low_tortuosity").asset.meta["tortuosity"]
     print(f"\ntype1 {t1}\nlow_tortuosity {lo}")
     assert lo["arch"] < t1["arch"] - 0.1
     assert lo["branches"] < t1["branches"]
@@ -172,7 +188,7 @@ def test_tortuosity_of_low_tortuosity_is_lower_than_type1():
     for b in BRANCHES:
         dm = []
         for name in ("type1", "low_tortuosity"):
-            pts = np.asarray(shipped(name)[0].centerlines[b].points)
+            pts = np.asarray(shipped(name).asset.centerlines[b].points)
             seg = pts[-20:]
             dm.append(np.linalg.norm(np.diff(seg, axis=0), axis=1).sum() / np.linalg.norm(seg[-1] - seg[0]))
         assert dm[1] <= dm[0] + 1e-6, (b, dm)
@@ -197,7 +213,7 @@ def lumen_diameter(asset, point, axis, n_rays=16):
 
 
 def test_aneurysm_is_at_least_one_and_a_half_times_the_adjacent_aorta():
-    asset = shipped("aneurysm")[0]
+    asset = shipped("aneurysm").asset
     # Lumen radius (distance to the wall) along the path over the arch to the LSA.
     pts, rad = (np.asarray(a) for a in asset.centerlines["lsa"])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
@@ -217,12 +233,12 @@ def test_aneurysm_is_at_least_one_and_a_half_times_the_adjacent_aorta():
     # On the proximal descending aorta / distal arch: patient left, above mid-descending, below the ostia.
     assert pts[peak][0] > 0 and -0.04 < pts[peak][1] < asset.meta["ostia"]["lsa"][1]
     # type1 has no such bulge.
-    r1 = np.asarray(shipped("type1")[0].centerlines["lsa"].radius)
+    r1 = np.asarray(shipped("type1").asset.centerlines["lsa"].radius)
     assert r1.max() < 0.0145
 
 
 def test_bovine_bca_and_lcca_share_one_ostium():
-    asset = shipped("bovine")[0]
+    asset = shipped("bovine").asset
     o = {b: np.asarray(asset.meta["ostia"][b]) for b in BRANCHES}
     assert np.linalg.norm(o["bca"] - o["lcca"]) < 1e-6
     assert np.linalg.norm(o["lsa"] - o["bca"]) > 0.015
@@ -232,13 +248,13 @@ def test_bovine_bca_and_lcca_share_one_ostium():
         assert np.linalg.norm(pts - o["bca"], axis=1).min() < 1.5 * MM, b
     assert np.linalg.norm(asset.sites["bca"] - asset.sites["lcca"]) > 0.015
     # In type1 they have separate ostia.
-    t1 = shipped("type1")[0].meta["ostia"]
+    t1 = shipped("type1").asset.meta["ostia"]
     assert np.linalg.norm(np.subtract(t1["bca"], t1["lcca"])) > 0.012
 
 
 def test_hole_detector_finds_a_missing_piece():
     """Sanity check of the wall check: drop the pieces around the LCCA ostium and holes are found."""
-    asset, hulls, _ = shipped("type1")
+    asset, hulls = shipped("type1").asset, shipped("type1").hulls
     ostium = np.asarray(asset.meta["ostia"]["lcca"])
     drop = np.argsort(np.linalg.norm(hulls.centroids - ostium, axis=1))[:10]
     keep = np.setdiff1d(np.arange(asset.hull_count), drop)
@@ -250,7 +266,7 @@ def test_hole_detector_finds_a_missing_piece():
 
 
 def test_intrusion_and_blockage_are_found():
-    asset, hulls, _ = shipped("type1")
+    asset, hulls = shipped("type1").asset, shipped("type1").hulls
     pieces = [np.asarray(h) for h in asset.hulls]
     # Push the piece nearest the LCCA site 1 mm into the lumen...
     site = asset.sites["lcca"]
@@ -279,7 +295,7 @@ def _with_hulls(asset, hulls):
 def test_entry_is_open():
     """The wire's way in along +y from below the open end meets no wall piece."""
     for name in SHIPPED:
-        asset, hulls, _ = shipped(name)
+        asset, hulls = shipped(name).asset, shipped(name).hulls
         oe = asset.meta["open_end"]
         c, r = np.array(oe["center"]), oe["radius_m"]
         rng = np.random.default_rng(2)
@@ -301,7 +317,7 @@ def test_entry_is_open():
 
 def test_signed_distance_matches_ray_casting():
     """The pseudo-normal signed distance used by the validation agrees with trimesh's ray tests."""
-    asset = shipped("type1")[0]
+    asset = shipped("type1").asset
     lumen = trimesh_of(asset)
     rng = np.random.default_rng(3)
     pts = np.concatenate(
@@ -328,7 +344,7 @@ def test_signed_distance_matches_ray_casting():
 
 
 def test_type1_landmarks_match_the_model():
-    asset = shipped("type1")[0]
+    asset = shipped("type1").asset
     model = build_arch(ArchParams(**asset.params))
     s = asset.sites
     for b in BRANCHES:

@@ -13,14 +13,32 @@ from cathsim_dmc.sim import geom_groups
 from cathsim_dmc.sim.export import START_KEY, export_scene
 
 
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """`exported(aorta, **options)`: the reset bca environment and its exported scene, built once
+    per module (an export writes thousands of wall meshes); the tests only read them."""
+    built = {}
+
+    def get(aorta, **options):
+        key = (aorta, tuple(sorted(options.items())))
+        if key not in built:
+            env = tasks.load("bca", aorta, seed=0, **options)
+            env.reset()
+            folder = tmp_path_factory.mktemp("export") / aorta
+            built[key] = env, export_scene(env, folder)
+        return built[key]
+
+    yield get
+    for env, _ in built.values():
+        env.close()
+
+
 # The export does not depend on the anatomy: type I runs by default, the other aortas with -m slow.
 @pytest.mark.parametrize(
     "aorta", [p if p.values[0] == "type1" else pytest.param(*p.values, marks=pytest.mark.slow) for p in aorta_params()]
 )
-def test_exported_scene_reloads_and_steps(aorta, tmp_path):
-    env = tasks.load("bca", aorta, seed=0)
-    env.reset()
-    scene = export_scene(env, tmp_path / aorta)
+def test_exported_scene_reloads_and_steps(aorta, exported):
+    env, scene = exported(aorta)
     original = env.physics.model.ptr
     model = mujoco.MjModel.from_xml_path(str(scene))
 
@@ -58,25 +76,19 @@ def test_exported_scene_reloads_and_steps(aorta, tmp_path):
     for _ in range(100):
         mujoco.mj_step(model, data)
     assert np.isfinite(data.qpos).all()
-    env.close()
 
 
-def test_the_distance_field_wall_exports_as_prisms(tmp_path):
+def test_the_distance_field_wall_exports_as_prisms(exported):
     """MuJoCo alone cannot simulate the field wall (`physics=fast_field`): its export is
-    the prism wall's, file for file."""
-    scenes = {}
-    for physics in ("fast_field", "fast"):
-        env = tasks.load("lcca", "type1", seed=0, physics=physics)
-        env.reset()
-        scenes[physics] = export_scene(env, tmp_path / physics)
-        env.close()
-    assert scenes["fast_field"].read_text() == scenes["fast"].read_text()
-    files = sorted(p.name for p in (tmp_path / "fast_field" / "meshes").iterdir())
-    assert files == sorted(p.name for p in (tmp_path / "fast" / "meshes").iterdir())
-    assert all(
-        (tmp_path / "fast_field" / "meshes" / f).read_bytes() == (tmp_path / "fast" / "meshes" / f).read_bytes()
-        for f in files
-    )
+    the prism wall's (the default, `physics=fast`), file for file."""
+    field_env, field_scene = exported("type1", physics="fast_field")
+    prism_env, prism_scene = exported("type1")
+    assert (field_env.task.physics_setting, prism_env.task.physics_setting) == ("fast_field", "fast")
+    assert field_scene.read_text() == prism_scene.read_text()
+    field_meshes, prism_meshes = field_scene.parent / "meshes", prism_scene.parent / "meshes"
+    files = sorted(p.name for p in field_meshes.iterdir())
+    assert files and files == sorted(p.name for p in prism_meshes.iterdir())
+    assert all((field_meshes / f).read_bytes() == (prism_meshes / f).read_bytes() for f in files)
 
 
 def test_cli_writes_the_scene_and_refuses_to_overwrite(tmp_path):

@@ -8,6 +8,7 @@ checked on the whole wire, also below the entry plane.
 
 import numpy as np
 import pytest
+from shipped import aorta_params
 
 from cathsim_dmc import tasks
 from cathsim_dmc.anatomy.containment import Containment
@@ -51,13 +52,14 @@ def _run(aorta, random_steps, max_steps, seed=0):
     return monitor, env
 
 
-@pytest.mark.parametrize("aorta", available_aortas())
+# The oblique arches run with -m slow (tests/shipped.py), as in the long test below.
+@pytest.mark.parametrize("aorta", aorta_params())
 def test_no_escape_short(aorta):
     monitor, _ = _run(aorta, random_steps=150, max_steps=100)
     assert monitor.escapes == 0, monitor.message()
 
 
-@pytest.mark.parametrize("aorta", available_aortas())
+@pytest.mark.parametrize("aorta", aorta_params())
 def test_divergence_truncates(aorta):
     monitor, env = _run(aorta, random_steps=20, max_steps=0)
     assert monitor.escapes == 0, monitor.message()
