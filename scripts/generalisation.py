@@ -17,8 +17,8 @@ one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,.
 
 - policies: each navigator seed's best.zip and, beside it, its last policy (last.zip);
   the scripted expert; the type I specialist; the shipped navigator (`policy=pretrained`);
-- anatomies: the held-out pool (`pool_seed` 1000: 100 arches of types I-III with the
-  published obliquity distribution, each visited once), the same pool with the roadmap's
+- anatomies: the held-out pool (`pool_seed=heldout`: 100 arches of aorta=random's
+  "morphometry" distribution, each visited once), the same pool with the roadmap's
   tracking and registration noise (navigators only), the nine shipped aortas and the
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
   `cathsim-aorta import` and default options.
@@ -34,7 +34,8 @@ each; `hydra.launcher.<key>=<value>` among the arguments passes on to it.
 
 `report` reads the scores into the tables of docs/training.md#unseen-anatomy: success, SPL,
 force and episode length on the held-out pool (the navigators' median over seeds with each
-seed's score), success by arch type, and success on each shipped aorta and corpus mesh.
+seed's score), success by arch type and by branching variant, and success on each shipped
+aorta and corpus mesh.
 """
 
 from __future__ import annotations
@@ -66,10 +67,11 @@ SHIPPED = (
     "low_tortuosity",
     "bovine",
 )
-HELDOUT = dict(pool_size=100, pool_seed=1000, order="cycle", obliquity_deg=[39.7, 13.79])
+# The named pools of aorta=random's "morphometry" distribution (tasks/randomized.py POOL_SEEDS).
+HELDOUT = dict(pool_size=100, pool_seed="heldout", order="cycle")
 HELDOUT_NAME = "heldout"
 # The pool the recipe was tuned on and the shipped seed is chosen on (never the held-out one).
-TUNING = dict(pool_size=50, pool_seed=500, order="cycle", obliquity_deg=[39.7, 13.79])
+TUNING = dict(pool_size=50, pool_seed="tuning", order="cycle")
 TUNING_NAME = "tuning"
 # The held-out pool again, with a real system's measurement errors in the roadmap preset: an
 # EM-tracked tip (about 1 mm) and a CTA-to-fluoroscopy registration (about 2 mm).
@@ -245,7 +247,7 @@ def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_ana
 def anatomy_of(overrides: dict) -> str:
     """The anatomy a cathsim-eval job of `evaluate` scored, from its overrides."""
     if overrides.get("aorta") == "random":
-        if int(overrides["aorta.params.pool_seed"]) == TUNING["pool_seed"]:
+        if str(overrides["aorta.params.pool_seed"]) == str(TUNING["pool_seed"]):
             return TUNING_NAME
         return NOISY_NAME if "obs.tracking_noise_m" in overrides else HELDOUT_NAME
     if overrides.get("aorta") == "folder":
@@ -348,17 +350,26 @@ def _metrics(folder: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def _arch_types() -> dict:
-    """Held-out arch name -> its type (I, II, III), from the pool's assets."""
+# A septum between the BCA and LCCA ostia thinner than this (the wall's 2 mm) makes the
+# "close ostia" variant of the report.
+CLOSE_OSTIA_GAP_M = 0.002
+VARIANTS = ("separate", "close ostia", "bovine")
+
+
+def variant_of(params: dict) -> str:
+    """An arch's branching variant from its generator parameters (meta.json's params)."""
+    if params.get("bovine"):
+        return "bovine"
+    return "close ostia" if params["bca_lcca_gap_m"] < CLOSE_OSTIA_GAP_M else "separate"
+
+
+def _pool_labels() -> tuple:
+    """(arch name -> type I/II/III, arch name -> variant) of the held-out pool's assets."""
     from cathsim_dmc.tasks.randomized import anatomy_pool
 
     params = {k: v for k, v in HELDOUT.items() if k != "order"}
-    return {
-        json.loads((a / "meta.json").read_text())["name"]: json.loads((a / "meta.json").read_text())["params"][
-            "arch_type"
-        ]
-        for a in anatomy_pool(**params)
-    }
+    metas = [json.loads((a / "meta.json").read_text()) for a in anatomy_pool(**params)]
+    return {m["name"]: m["params"]["arch_type"] for m in metas}, {m["name"]: variant_of(m["params"]) for m in metas}
 
 
 def _cell(values: list, fmt: str = "{:.0f}") -> str:
@@ -383,9 +394,9 @@ def _groups(scores: Path) -> dict:
     return dict(sorted(groups.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order)))
 
 
-def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
+def report(root: Path, out: Path | None, arch_types: dict | None = None, variants: dict | None = None) -> str:
     """The tables (markdown) from ROOT/scores; `arch_types` (held-out arch name -> I, II,
-    III) defaults to the pool's own."""
+    III) and `variants` (-> one of VARIANTS) default to the pool's own."""
     types = arch_types
     lines, shipped = [], {}
     for task in TARGETS:
@@ -397,22 +408,26 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None) -> str:
             f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
             "",
             "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III "
-            "| success % with noise |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| separate ostia | close ostia | bovine | success % with noise |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
             if not reports:
                 continue
-            types = types or _arch_types()
+            if types is None or variants is None:
+                pool_types, pool_variants = _pool_labels()
+                types, variants = types or pool_types, variants or pool_variants
             mean = lambda m, key: m["summary"][key]["mean"]  # noqa: E731
             by_type = []
-            for arch in ("I", "II", "III"):
-                rates = []
-                for m in reports:
-                    hits = [e["success"] for e in m["episodes"] if types.get(e.get("aorta")) == arch]
-                    rates.append(100.0 * sum(hits) / max(len(hits), 1))
-                by_type.append(_cell(rates))
+            for labels, label_values in ((types, ("I", "II", "III")), (variants, VARIANTS)):
+                for value in label_values:
+                    rates = []
+                    for m in reports:
+                        hits = [e["success"] for e in m["episodes"] if labels.get(e.get("aorta")) == value]
+                        if hits:
+                            rates.append(100.0 * sum(hits) / len(hits))
+                    by_type.append(_cell(rates))
             lines.append(
                 f"| {label} | {len(reports)} | {_cell([mean(m, 'success_pct') for m in reports])} | "
                 f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
@@ -510,10 +525,10 @@ def ship(root: Path, task: str) -> Path:
     best = json.loads((run / "checkpoints" / "best.json").read_text())
     anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {
-        HELDOUT_NAME: "held out: pool 1000, 100 arches",
+        HELDOUT_NAME: f"held out: pool {HELDOUT['pool_seed']}, {HELDOUT['pool_size']} arches",
         NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
         f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
-        TUNING_NAME: "tuning: pool 500, 50 arches",
+        TUNING_NAME: f"tuning: pool {TUNING['pool_seed']}, {TUNING['pool_size']} arches",
     }
     rows = "\n".join(
         f"| {names.get(anatomy, anatomy)} | {_summary(chosen / anatomy)} |"
@@ -557,8 +572,9 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
   `best.zip` of the run{stopped}: step {best["step"]}, {100 * best["success_rate"]:.0f}% of its periodic
   evaluation on 20 training arches; {chosen_by}.
-- **Data**: 64 random arches (`pool_seed` 0; types I-III, sizes and diameters x U(0.85, 1.15),
-  obliquity 39.7 +- 13.8 degrees), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
+- **Data**: 64 random arches (`pool_seed=training`, aorta=random's "morphometry" distribution:
+  types I-III, branching variants, origins, take-off and tortuosity as published morphometry
+  reports; docs/anatomy.md), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
   episodes labelled by the expert, then SAC with the cloning term.
 - **Files**: navigator_{task}.pt (the actor's weights), navigator_{task}.json (its shapes and options).
 

@@ -160,8 +160,9 @@ def load(
     `aorta="random"` returns a `RandomAnatomyEnvironment`: the anatomy is redrawn every
     `resample_every` episodes from a pool, set by `aorta_params` (`pool_size`, `pool_seed`,
     `resample_every`, `order` ("random" or "cycle"), `prebuild`, `assets`, and `sample_arch_params`'s distribution:
-    `base`, `arch_types`, `type_weights`, `size_scale`, `diameter_scale`, `obliquity_deg`,
-    `obliquity_range_deg`).
+    `distribution` ("morphometry" or "fixed_branches"), `base`, `arch_types`, `type_weights`, `size_scale`,
+    `diameter_scale`, `obliquity_deg`, `obliquity_range_deg`). `pool_seed` may be a name of
+    `randomized.POOL_SEEDS` ("training", "tuning", "heldout").
     """
     if aorta == RANDOM_AORTA:
         params = kwargs.pop("aorta_params", None)

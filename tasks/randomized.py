@@ -23,6 +23,7 @@ from cathsim_dmc.core.registry import RANDOM_AORTA
 
 # The sampling distribution's fields (`sample_arch_params`) that `aorta_params` may set.
 DISTRIBUTION_KEYS = (
+    "distribution",
     "base",
     "arch_types",
     "type_weights",
@@ -31,14 +32,38 @@ DISTRIBUTION_KEYS = (
     "obliquity_deg",
     "obliquity_range_deg",
 )
+# Draws of one pool arch before its fold is reported (`anatomy_pool`).
+MESH_TRIES = 4
 POOL_KEYS = ("pool_size", "pool_seed", "resample_every", "order", "assets", "prebuild")
 ORDERS = ("random", "cycle")
+# Named pool seeds of the "morphometry" distribution: the navigators train on "training",
+# their recipe is tuned and the shipped seed chosen on "tuning", and "heldout" is never
+# trained or tuned on (scripts/generalisation.py). The "fixed_branches" distribution's
+# tables used seeds 0, 500 and 1000.
+POOL_SEEDS = {"training": 3000, "tuning": 3500, "heldout": 4000}
 
 
-def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] | None = None, **distribution) -> list:
+def pool_seed_value(pool_seed) -> int:
+    """`pool_seed` as an int: an integer, or one of the names in `POOL_SEEDS`."""
+    if isinstance(pool_seed, str) and pool_seed in POOL_SEEDS:
+        return POOL_SEEDS[pool_seed]
+    try:
+        if float(pool_seed) == int(float(pool_seed)):
+            return int(float(pool_seed))
+    except (TypeError, ValueError):
+        pass
+    raise ValueError(f"aorta pool_seed={pool_seed!r} is not valid; give an integer or one of {list(POOL_SEEDS)}")
+
+
+def anatomy_pool(
+    pool_size: int = 8, pool_seed: int | str = 0, assets: Sequence[str] | None = None, **distribution
+) -> list:
     """The pool's asset folders: `assets` (names or folders) if given, else `pool_size`
     generated arches, the i-th drawn by `sample_arch_params(seed=(pool_seed, i), **distribution)`
-    (so a larger pool keeps the smaller one's anatomies)."""
+    (so a larger pool keeps the smaller one's anatomies). `pool_seed` may be a name of
+    `POOL_SEEDS`. An arch whose lumen folds at every edge length the mesher tries (a few in a
+    hundred of the morphometry distribution, in the crease between two close branches) is
+    drawn again from the same random stream, so the pool stays the same on every machine."""
     from cathsim_dmc.anatomy import generated_asset
     from cathsim_dmc.anatomy.generate import sample_arch_params
     from cathsim_dmc.core.shipped import resolve_asset
@@ -47,13 +72,21 @@ def anatomy_pool(pool_size: int = 8, pool_seed: int = 0, assets: Sequence[str] |
         return [resolve_asset(str(a)) for a in assets]
     if int(pool_size) < 1:
         raise ValueError(f"aorta pool_size={pool_size!r} must be at least 1")
+    pool_seed = pool_seed_value(pool_seed)
+    from cathsim_dmc.anatomy.lumen import FoldedSurfaceError
+
     options = {k: (tuple(v) if isinstance(v, list) else v) for k, v in distribution.items() if v is not None}
-    return [
-        generated_asset(
-            sample_arch_params(np.random.default_rng([int(pool_seed), i]), name=f"random{pool_seed}-{i}", **options)
-        )
-        for i in range(int(pool_size))
-    ]
+
+    def arch(i):
+        rng = np.random.default_rng([pool_seed, i])
+        for attempt in range(MESH_TRIES):
+            try:
+                return generated_asset(sample_arch_params(rng, name=f"random{pool_seed}-{i}", **options))
+            except FoldedSurfaceError:
+                if attempt == MESH_TRIES - 1:
+                    raise
+
+    return [arch(i) for i in range(int(pool_size))]
 
 
 def random_anatomy_environment(params: dict | None, build, seed=None) -> "RandomAnatomyEnvironment":
@@ -69,6 +102,13 @@ def random_anatomy_environment(params: dict | None, build, seed=None) -> "Random
     env_keys = ("resample_every", "prebuild", "order")
     if params.get("order", "random") not in ORDERS:  # before the pool, whose build takes tens of seconds
         raise ValueError(f"aorta order={params['order']!r}; choose one of {list(ORDERS)}")
+    from cathsim_dmc.anatomy.generate import DISTRIBUTIONS
+
+    pool_seed_value(params.get("pool_seed", 0))
+    if params.get("distribution") not in (None, *DISTRIBUTIONS):
+        raise ValueError(
+            f"aorta distribution={params['distribution']!r} is not valid; choose one of {list(DISTRIBUTIONS)}"
+        )
     pool = anatomy_pool(**{k: v for k, v in params.items() if k not in env_keys})
     return RandomAnatomyEnvironment(pool, build, seed=seed, **{k: params[k] for k in env_keys if k in params})
 

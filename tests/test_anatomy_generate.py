@@ -6,6 +6,7 @@ the slow test builds and fully validates 20 randomly sampled arches at the shipp
 resolution (`pytest -m slow tests/test_anatomy_generate.py`).
 """
 
+import functools
 import json
 import os
 import subprocess
@@ -129,13 +130,16 @@ def test_concurrent_processes_share_one_complete_asset(tmp_path):
     assert asset.name == "race" and asset.hull_count > 1000
 
 
-def test_sampler_distribution():
-    draws = [sample_arch_params(seed) for seed in range(150)]
-    assert sample_arch_params(5) == sample_arch_params(5)
-    assert sample_arch_params(5) != sample_arch_params(6)
+def test_the_fixed_branches_sampler_distribution():
+    """The distribution before "morphometry" (tests/test_morphometry.py) draws only the type, the
+    sizes and one diameter scale."""
+    sample = functools.partial(sample_arch_params, distribution="fixed_branches")
+    draws = [sample(seed) for seed in range(150)]
+    assert sample(5) == sample(5)
+    assert sample(5) != sample(6)
     # Generator and RandomState are accepted too.
-    assert sample_arch_params(np.random.default_rng(5)) == sample_arch_params(5)
-    assert isinstance(sample_arch_params(np.random.RandomState(5)), ArchParams)
+    assert sample(np.random.default_rng(5)) == sample(5)
+    assert isinstance(sample(np.random.RandomState(5)), ArchParams)
     base = PRESETS["type1"]
     types = [p.arch_type for p in draws]
     counts = {t: types.count(t) for t in ("I", "II", "III")}
@@ -149,16 +153,16 @@ def test_sampler_distribution():
         assert lo - 1e-4 <= p.bca_origin_drop_m / p.lcca_diameter_m <= hi + 1e-4
         assert 0.85 - 1e-6 <= p.arch_width_m / base.arch_width_m <= 1.15 + 1e-6
     # Only some types; weights.
-    only3 = {sample_arch_params(s, arch_types=(3,)).arch_type for s in range(10)}
+    only3 = {sample(s, arch_types=(3,)).arch_type for s in range(10)}
     assert only3 == {"III"}
-    weighted = [sample_arch_params(s, type_weights=(1, 0, 0)).arch_type for s in range(10)]
+    weighted = [sample(s, type_weights=(1, 0, 0)).arch_type for s in range(10)]
     assert set(weighted) == {"I"}
     # Other base features are kept.
-    assert sample_arch_params(1, base="bovine").bovine
+    assert sample(1, base="bovine").bovine
     with pytest.raises(ValueError, match="type_weights"):
-        sample_arch_params(0, type_weights=(1, 1))
+        sample(0, type_weights=(1, 1))
     with pytest.raises(ValueError, match="size_scale"):
-        sample_arch_params(0, size_scale=(1.2, 1.1))
+        sample(0, size_scale=(1.2, 1.1))
 
 
 # Every branch's meshed lumen keeps at least this fraction of its nominal radius. A flat
@@ -191,14 +195,14 @@ def lumen_ratios(model, lumen) -> dict:
 
 @pytest.fixture(scope="module")
 def narrow_lcca_ratios():
-    """aorta=random's pool_seed=100 arch 42 meshed by `build_lumen` with mesher version 1 and
-    with its default (the current one; one SDF grid for both): {version: lumen_ratios}. Its
-    7.6 mm LCCA, meshed at 7 mm edges with version 1, kept a lumen radius of 1-2 mm (0.25 of
-    nominal) and the scripted expert stuck at its ostium."""
+    """aorta=random's pool_seed=100 arch 42 (the fixed_branches distribution) meshed by
+    `build_lumen` with mesher version 1 and with its default (the current one; one SDF grid
+    for both): {version: lumen_ratios}. Its 7.6 mm LCCA, meshed at 7 mm edges with version 1,
+    kept a lumen radius of 1-2 mm (0.25 of nominal) and the scripted expert stuck at its ostium."""
     from cathsim_dmc.anatomy.lumen import build_lumen
     from cathsim_dmc.anatomy.sdf import arch_sdf_grid
 
-    p = sample_arch_params(np.random.default_rng([100, 42]), name="random100-42")
+    p = sample_arch_params(np.random.default_rng([100, 42]), name="random100-42", distribution="fixed_branches")
     assert p.edge_length_m == 0.007 and p.lcca_diameter_m < 0.0077
     model = build_arch(p)
     grid = arch_sdf_grid(model)

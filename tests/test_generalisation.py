@@ -23,7 +23,7 @@ def _write(folder, successes, aortas, force=0.2, length=100):
     (folder / "metrics.json").write_text(json.dumps({"summary": summary, "episodes": episodes}))
 
 
-def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_path, repo_root):
+def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_variant(tmp_path, repo_root):
     script = load_script(repo_root / "scripts" / "generalisation.py")
     aortas = ["a", "b", "c", "d"]
     types = {"a": "I", "b": "II", "c": "III", "d": "III"}
@@ -35,13 +35,17 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type(tmp_p
     _write(scores / "navigator_seed0_best" / "heldout_noise", [True, False, True, False], aortas)
     _write(scores / "expert" / "heldout", [True, True, True, True], aortas)
     _write(scores / "expert" / "type2", [True, False], ["type2", "type2"])
-    text = script.report(tmp_path, tmp_path / "table.md", arch_types=types)
+    variants = {"a": "separate", "b": "close ostia", "c": "bovine", "d": "bovine"}
+    text = script.report(tmp_path, tmp_path / "table.md", arch_types=types, variants=variants)
     heldout, shipped_table = text.split("Success % on the shipped aortas")
     rows = {line.split(" | ")[0].strip("| "): line for line in heldout.splitlines() if line.startswith("| ")}
     best = rows["navigator, best.zip"].split(" | ")
     assert best[1] == "3"  # seeds
     assert best[2] == "75 (75, 50, 100)"  # median success, then each seed's
-    assert best[6:10] == ["100 (100, 100, 100)", "100 (100, 100, 100)", "50 (50, 0, 100)", "50 |"]  # with noise: seed 0
+    all_reached, half = "100 (100, 100, 100)", "50 (50, 0, 100)"
+    assert best[6:9] == [all_reached, all_reached, half]  # by arch type
+    assert best[9:12] == [all_reached, all_reached, half]  # by variant
+    assert best[12] == "50 |"  # with noise: seed 0
     assert rows["navigator, last.zip"].split(" | ")[2] == "0"
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there
     # (the expert's 1 of 2 on type II), and a dash where nothing was scored.
@@ -113,8 +117,8 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                 pool = job.get("aorta") == "random"
                 assert cfg.episodes == (7 if pool else 3) and cfg.seed == script.EVAL_SEED and not cfg.video
                 if pool:
-                    assert (cfg.aorta.params.pool_size, cfg.aorta.params.pool_seed) == (100, 1000)
-                    assert list(cfg.aorta.params.obliquity_deg) == [39.7, 13.79]
+                    assert (cfg.aorta.params.pool_size, cfg.aorta.params.pool_seed) == (100, "heldout")
+                    assert cfg.aorta.params.distribution == "morphometry"
                 noisy = script.anatomy_of(job) == "heldout_noise"
                 assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
                 # a trained agent brings its own observations, named where their noise is set
@@ -126,7 +130,7 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
     assert len(jobs) == 5  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
     corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
     assert script.anatomy_of(corpus) == "corpus_pinched"
-    assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "500"}) == "tuning"
+    assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "tuning"}) == "tuning"
 
 
 def test_evaluate_runs_a_multirun_and_files_each_score_in_its_place(tmp_path, repo_root):

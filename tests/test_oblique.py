@@ -2,6 +2,7 @@
 its measured obliquity, the shipped `*_oblique` variants, the sampler's obliquity draw,
 and the top camera turned into a left anterior oblique view (`lao_deg`)."""
 
+import functools
 import json
 import math
 import pathlib
@@ -83,12 +84,12 @@ def test_the_default_is_unchanged_and_the_new_field_is_recorded_only_when_set(mo
 
     # Cache keys today: GENERATOR_VERSION 2 (the lumen mesher fix) changed every key on purpose.
     assert params_hash(PRESETS["type1"]) == "efc2bd260760fb94"
-    assert params_hash(sample_arch_params(3)) == "ee9f34fc487f534b"
+    assert params_hash(sample_arch_params(3, distribution="fixed_branches")) == "ee9f34fc487f534b"
     # At GENERATOR_VERSION 1 the keys of the arches made before the field existed (computed
     # with that code): the unset field leaves the hash as it was.
     monkeypatch.setattr(generate, "GENERATOR_VERSION", 1)
     assert params_hash(PRESETS["type1"]) == "e13b5e26badd5989"
-    assert params_hash(sample_arch_params(3)) == "ec38265df4033360"
+    assert params_hash(sample_arch_params(3, distribution="fixed_branches")) == "ec38265df4033360"
     assert params_hash(PRESETS["type1"].replace(arch_rotation_deg=1.0)) != "e13b5e26badd5989"
     for name in ("type1", "type2", "type3"):
         meta = json.loads((ROOT / "assets" / name / "meta.json").read_text())
@@ -129,31 +130,36 @@ def test_shipped_oblique_arch_is_its_plain_arch_turned(name):
 # The sampler
 
 
-def test_sampler_obliquity_is_off_by_default_and_otherwise_drawn_and_reached():
-    plain = sample_arch_params(5)
+def test_sampler_obliquity_is_off_by_default_with_fixed_branches_and_otherwise_drawn_and_reached():
+    sample = functools.partial(sample_arch_params, distribution="fixed_branches")
+    plain = sample(5)
     assert plain.arch_rotation_deg == 0.0
     # Exactly the published mean when the SD is 0; the other draws are unchanged.
-    fixed = sample_arch_params(5, obliquity_deg=(ARCH_OBLIQUITY_DEG[0], 0.0))
+    fixed = sample(5, obliquity_deg=(ARCH_OBLIQUITY_DEG[0], 0.0))
     assert fixed.replace(arch_rotation_deg=0.0) == plain
     assert build_arch(fixed).obliquity_deg == pytest.approx(ARCH_OBLIQUITY_DEG[0], abs=2e-3)
     # Drawn: clipped to the range, and the model's obliquity is the draw.
     for seed in range(4):
-        p = sample_arch_params(seed, obliquity_deg=ARCH_OBLIQUITY_DEG, obliquity_range_deg=(20.0, 50.0))
+        p = sample(seed, obliquity_deg=ARCH_OBLIQUITY_DEG, obliquity_range_deg=(20.0, 50.0))
         assert 20.0 - 2e-3 <= build_arch(p).obliquity_deg <= 50.0 + 2e-3
-    draws = {sample_arch_params(s, obliquity_deg=ARCH_OBLIQUITY_DEG).arch_rotation_deg for s in range(4)}
+    draws = {sample(s, obliquity_deg=ARCH_OBLIQUITY_DEG).arch_rotation_deg for s in range(4)}
     assert len(draws) == 4
     with pytest.raises(ValueError, match="obliquity"):
-        sample_arch_params(0, obliquity_deg=(40.0, -1.0))
+        sample(0, obliquity_deg=(40.0, -1.0))
+    # The morphometry distribution always draws it, from the published distribution by default.
+    exact = sample_arch_params(5, obliquity_deg=(ARCH_OBLIQUITY_DEG[0], 0.0))
+    assert build_arch(exact).obliquity_deg == pytest.approx(ARCH_OBLIQUITY_DEG[0], abs=2e-3)
+    assert sample_arch_params(5).arch_rotation_deg != 0.0
 
 
-def test_random_aorta_config_passes_the_obliquity_to_the_sampler():
+def test_random_aorta_config_passes_the_distribution_and_obliquity_to_the_sampler():
     import yaml
 
     from cathsim_dmc.tasks.randomized import DISTRIBUTION_KEYS
 
     conf = yaml.safe_load((ROOT / "conf" / "aorta" / "random.yaml").read_text())["params"]
-    assert {"obliquity_deg", "obliquity_range_deg"} <= set(DISTRIBUTION_KEYS) & set(conf)
-    assert conf["obliquity_deg"] is None, "off by default"
+    assert {"distribution", "obliquity_deg", "obliquity_range_deg"} <= set(DISTRIBUTION_KEYS) & set(conf)
+    assert conf["distribution"] == "morphometry" and conf["obliquity_deg"] is None, "the sampler's defaults"
 
 
 # ----------------------------------------------------------------------------

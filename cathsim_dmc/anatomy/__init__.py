@@ -33,7 +33,11 @@ from cathsim_dmc.anatomy.asset import (
 from cathsim_dmc.anatomy.containment import Channel, Containment, LumenField, build_lumen_field, lumen_field
 from cathsim_dmc.anatomy.generate import (
     CACHE_ENV,
+    DISTRIBUTIONS,
+    MORPHOMETRY,
+    Morphometry,
     arch_params,
+    branch_clearance_m,
     cache_root,
     generated_asset,
     params_hash,
@@ -88,6 +92,10 @@ __all__ = [
     "build_lumen_field",
     "lumen_field",
     "CACHE_ENV",
+    "DISTRIBUTIONS",
+    "MORPHOMETRY",
+    "Morphometry",
+    "branch_clearance_m",
     "arch_params",
     "cache_root",
     "generated_asset",

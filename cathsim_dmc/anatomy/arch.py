@@ -59,6 +59,10 @@ class ArchModel:
     open_end_radius: float
     arch_top_y: float  # top of the outer curvature (nominal tube surface)
     arch_s: Tuple[float, float] = (0.0, 0.0)  # arclength on `aorta` of the arch's ends (descending, ascending)
+    # Arclength on the centreline of each branch that leaves at a slant (a take-off angle)
+    # of its ostium, where it leaves the aortic wall; for the others it is the aortic radius
+    # at the origin.
+    branch_wall_u: Dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def vessels(self) -> Tuple[Vessel, ...]:
@@ -141,6 +145,26 @@ class _ArchCurve:
         n = n - np.sum(n * t, axis=-1, keepdims=True) * t
         return _unit(n)
 
+    def takeoff_direction(self, theta, roll_deg: float, takeoff_deg: float):
+        """(direction, stretch): a branch's first direction from the centreline at `theta`,
+        `rolled_normal` leaned by `takeoff_deg` in the arch plane (positive towards the
+        descending side, against the tangent), and 1 / cos(take-off), by which the path
+        from the centreline to the wall grows."""
+        n = self.rolled_normal(theta, roll_deg)
+        if takeoff_deg == 0.0:
+            return n, 1.0
+        a = math.radians(takeoff_deg)
+        return _unit(math.cos(a) * n - math.sin(a) * self.tangent(theta)), 1.0 / math.cos(a)
+
+    def rolled_normal(self, theta, roll_deg: float):
+        """`normal` turned by `roll_deg` about the tangent, positive towards +z (anterior)."""
+        n = self.normal(theta)
+        if roll_deg == 0.0:
+            return n
+        binormal = np.cross(n, self.tangent(theta))  # +z where the arch lies in the x-y plane
+        r = math.radians(roll_deg)
+        return _unit(math.cos(r) * n + math.sin(r) * binormal)
+
 
 def _bisect(f, lo, hi, iters=80):
     flo = f(lo)
@@ -168,6 +192,10 @@ def build_arch(params: ArchParams) -> ArchModel:
     p.validate()
     arch = _ArchCurve(p)
     r_branch = {b: p.branch_diameter_m(b) / 2.0 for b in BRANCHES}
+    # A bovine trunk (BCA and LCCA from one ostium) leaves where, and as, the BCA does.
+    trunk_of = lambda b: "bca" if p.bovine and b == "lcca" else b
+    roll_of = lambda b: getattr(p, f"{trunk_of(b)}_roll_deg")
+    takeoff_of = lambda b: getattr(p, f"{trunk_of(b)}_takeoff_deg")
 
     # --- aortic centreline: from below the open end up the descending aorta,
     # over the arch, down the ascending aorta to the root. Arclength s = 0 is
@@ -192,16 +220,21 @@ def build_arch(params: ArchParams) -> ArchModel:
         tan = arch.tangent(th)
         outer_y = arch.point(th)[:, 1] + r_of_theta(th) * np.sqrt(np.clip(1 - tan[:, 1] ** 2, 0, 1))
         top_y, theta_top = float(outer_y.max()), float(th[np.argmax(outer_y)])
-        ostium = lambda t: arch.point(t) + r_of_theta(t) * arch.normal(t)
-        drop = lambda t: top_y - ostium(t)[1] - p.bca_origin_drop_m
+
+        def ostium(t, b):
+            direction, stretch = arch.takeoff_direction(t, roll_of(b), takeoff_of(b))
+            reach = r_of_theta(t) if stretch == 1.0 else r_of_theta(t) * stretch
+            return arch.point(t) + reach * direction
+
+        drop = lambda t: top_y - ostium(t, "bca")[1] - p.bca_origin_drop_m
         if drop(math.pi * 0.98) < 0:
             raise ValueError("ArchParams.bca_origin_drop_m is larger than the arch allows.")
         theta = {"bca": _bisect(drop, theta_top, math.pi * 0.98)}
         # LCCA then LSA, each spaced from its neighbour by the given wall-to-wall gap.
         for prev, nxt, gap in (("bca", "lcca", p.bca_lcca_gap_m), ("lcca", "lsa", p.lcca_lsa_gap_m)):
             want = r_branch[prev] + gap + r_branch[nxt]
-            o_prev = ostium(theta[prev])
-            f = lambda t: np.linalg.norm(ostium(t) - o_prev) - want
+            o_prev = ostium(theta[prev], prev)
+            f = lambda t: np.linalg.norm(ostium(t, nxt) - o_prev) - want
             if f(0.05) < 0:
                 raise ValueError(f"No room on the arch for the {nxt.upper()} with the given gaps.")
             theta[nxt] = _bisect(f, 0.05, theta[prev])
@@ -266,27 +299,35 @@ def build_arch(params: ArchParams) -> ArchModel:
         P = np.array([np.interp(s_query, s, points[:, k]) for k in range(3)])
         return P, float(np.interp(s_query, s, radius))
 
-    # --- branches: straight out along the arch normal through the aortic wall,
-    # then turning to their heading over `branch_bend_length_m`.
-    branches, ostia, sites = {}, {}, {}
+    # --- branches: straight out through the aortic wall along the arch normal (turned by
+    # the take-off angle), then turning to their heading over `branch_bend_length_m`.
+    branches, ostia, sites, wall_u = {}, {}, {}, {}
+    phases = _branch_phases(p)
     for b in BRANCHES:
         A, R_a = aorta_at(s_br[b])
-        n0 = arch.normal(theta[b])
+        takeoff = takeoff_of(b)
+        n0, stretch = arch.takeoff_direction(theta[b], roll_of(b), takeoff)
+        u_wall = R_a if takeoff == 0.0 else R_a * stretch
         ang = math.radians(p.branch_angle_deg(b))
         d1 = np.array([math.sin(ang), math.cos(ang), 0.0])
-        total = R_a + p.branch_length_m(b)
+        total = u_wall + p.branch_length_m(b)
         u = np.arange(0.0, total + 1e-12, _SAMPLE_M / 2)
-        bend_start = R_a + (p.bovine_trunk_length_m if p.bovine and b in ("bca", "lcca") else 0.0)
+        bend_start = u_wall + (p.bovine_trunk_length_m if p.bovine and b in ("bca", "lcca") else 0.0)
         w = _smoothstep((u - bend_start) / p.branch_bend_length_m)[:, None]
         dirs = _unit((1 - w) * n0 + w * d1)
         steps = np.diff(u)[:, None] * 0.5 * (dirs[1:] + dirs[:-1])
         bpts = A + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
         bpts = resample_polyline(bpts, _SAMPLE_M)
+        if p.branch_tortuosity_amplitude_m > 0:
+            amplitude, wavelength = p.branch_tortuosity_amplitude_m, p.branch_tortuosity_wavelength_m
+            bpts = _wiggle(bpts, u_wall, d1, amplitude, wavelength, phases[b])
         ub = arclength(bpts)
-        taper = np.clip((ub - R_a) / p.branch_length_m(b), 0, 1)
+        taper = np.clip((ub - u_wall) / p.branch_length_m(b), 0, 1)
         branches[b] = Vessel(b, bpts, r_branch[b] * (1 - (1 - p.branch_taper) * taper))
-        ostia[b] = A + R_a * n0
-        sites[b] = np.array([np.interp(R_a + p.site_depth_m, ub, bpts[:, k]) for k in range(3)])
+        ostia[b] = A + u_wall * n0
+        sites[b] = np.array([np.interp(u_wall + p.site_depth_m, ub, bpts[:, k]) for k in range(3)])
+        if takeoff != 0.0:
+            wall_u[b] = float(u_wall)
 
     # Top of the outer curvature of the final tube (highest point of its wall).
     tan_all = _unit(np.gradient(points, s, axis=0))
@@ -318,7 +359,27 @@ def build_arch(params: ArchParams) -> ArchModel:
         open_end_radius=r_open,
         arch_top_y=top_y,
         arch_s=(float(s_arch0), float(s_arch1)),
+        branch_wall_u=wall_u,
     )
+
+
+def _branch_phases(p: ArchParams) -> Dict[str, float]:
+    """The branch tortuosity's phase per branch, from `seed` (a stream of its own, so the
+    aortic tortuosity's phase stays what it was)."""
+    rng = np.random.default_rng([p.seed, 1])
+    return {b: float(rng.uniform(0.0, 2 * math.pi)) for b in BRANCHES}
+
+
+def _wiggle(points, u_start, heading, amplitude, wavelength, phase):
+    """`points` (a branch centreline) displaced sideways, perpendicular to `heading` in the
+    frontal plane, by a sinusoid that rises from zero at arclength `u_start` over one
+    wavelength."""
+    u = arclength(points)
+    side = np.array([heading[1], -heading[0], 0.0])
+    x = (u - u_start) / wavelength
+    envelope = _smoothstep(x)
+    offset = amplitude * envelope * (np.sin(2 * math.pi * x + phase) - math.sin(phase))
+    return resample_polyline(points + offset[:, None] * side, _SAMPLE_M)
 
 
 def _turn_about_descending(angle_deg: float, arch: _ArchCurve):
@@ -355,9 +416,9 @@ def path_to_site(model: ArchModel, branch: str, spacing: float = 0.0015, fillet_
 
     br = model.branches[branch]
     ub = br.arclength
-    R_a = float(np.interp(s_origin, s, model.aorta.radius))
-    u_join = R_a + 0.25 * p.site_depth_m  # a little past the ostium, in the branch
-    u_site = R_a + p.site_depth_m
+    u_wall = model.branch_wall_u.get(branch, float(np.interp(s_origin, s, model.aorta.radius)))
+    u_join = u_wall + 0.25 * p.site_depth_m  # a little past the ostium, in the branch
+    u_site = u_wall + p.site_depth_m
     bat = lambda uq: np.array([np.interp(uq, ub, br.points[:, k]) for k in range(3)])
     tangent_b = _unit(bat(u_join + 1e-4) - bat(u_join - 1e-4))
     P0, P3 = at(s_fillet), bat(u_join)

@@ -377,7 +377,17 @@ class BuildReport:
 # Generator fields added after assets were shipped: written to meta.json (and hashed
 # for the cache) only when they differ from these defaults, so that every asset and
 # cache key made before them stays the same, byte for byte.
-LATER_FIELD_DEFAULTS = {"arch_rotation_deg": 0.0}
+LATER_FIELD_DEFAULTS = {
+    "arch_rotation_deg": 0.0,
+    "bca_takeoff_deg": 0.0,
+    "lcca_takeoff_deg": 0.0,
+    "lsa_takeoff_deg": 0.0,
+    "bca_roll_deg": 0.0,
+    "lcca_roll_deg": 0.0,
+    "lsa_roll_deg": 0.0,
+    "branch_tortuosity_amplitude_m": 0.0,
+    "branch_tortuosity_wavelength_m": 0.030,
+}
 
 
 def params_record(params) -> dict:

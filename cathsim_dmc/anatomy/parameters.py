@@ -25,6 +25,17 @@ MIN_SDF_SPACING_M = 0.00025
 MIN_EDGE_LENGTH_M = 0.001
 
 
+# Lengths that may be 0 (every other `*_m` field must be positive).
+NON_NEGATIVE_FIELDS = (
+    "tortuosity_amplitude_m",
+    "aneurysm_diameter_m",
+    "bovine_trunk_length_m",
+    "bca_lcca_gap_m",
+    "lcca_lsa_gap_m",
+    "branch_tortuosity_amplitude_m",
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class ArchParams:
     """Generator parameters. Lengths in metres, angles in degrees.
@@ -39,7 +50,7 @@ class ArchParams:
     # `bca_origin_drop_m`; this label is for humans and is checked against the
     # measured drop by the build (see `ArchModel.arch_type_measured`).
     arch_type: str = "I"
-    # Seed for every random choice (currently only the tortuosity phases).
+    # Seed for every random choice (the phases of the aortic and branch tortuosity).
     seed: int = 0
 
     # Aortic lumen diameters, Hager et al. 2002, "Diameters of the thoracic
@@ -95,7 +106,8 @@ class ArchParams:
     # taper; modelling choice).
     branch_taper: float = 0.9
     # Wall-to-wall gaps between neighbouring ostia along the outer curvature
-    # (about 4 mm BCA-LCCA and 6 mm LCCA-LSA in CTA series, design brief).
+    # (about 4 mm BCA-LCCA and 6 mm LCCA-LSA in CTA series, design brief); 0: the ostia
+    # touch.
     bca_lcca_gap_m: float = 0.004
     lcca_lsa_gap_m: float = 0.006
     # Vertical distance from the top of the outer curvature down to the BCA
@@ -109,8 +121,26 @@ class ArchParams:
     bca_angle_deg: float = -20.0
     lcca_angle_deg: float = 5.0
     lsa_angle_deg: float = 30.0
-    # Length over which a branch turns from the arch normal to its heading.
+    # Length over which a branch turns from its take-off direction to its heading.
     branch_bend_length_m: float = 0.020
+    # Take-off: the angle, in the arch plane, between a branch's first direction (through
+    # the ostium) and the arch's outward normal there; positive leans towards the
+    # descending side (patient left), negative towards the ascending side. 0: straight
+    # out of the wall. A bovine trunk leaves at the BCA's.
+    bca_takeoff_deg: float = 0.0
+    lcca_takeoff_deg: float = 0.0
+    lsa_takeoff_deg: float = 0.0
+    # Origin roll: each ostium turned about the aortic centreline away from the outer
+    # curvature, degrees, positive anterior (+z before `arch_rotation_deg`). The ostia of
+    # real arches do not all sit on the top of the outer curvature.
+    bca_roll_deg: float = 0.0
+    lcca_roll_deg: float = 0.0
+    lsa_roll_deg: float = 0.0
+    # Branch tortuosity: a sideways sinusoid of the branch centerline (perpendicular to its
+    # heading, in the frontal plane), rising from zero at the ostium over one wavelength,
+    # with a random phase per branch from `seed`. 0: none.
+    branch_tortuosity_amplitude_m: float = 0.0
+    branch_tortuosity_wavelength_m: float = 0.030
     # Bovine arch: the BCA and LCCA share one ostium (common origin) and run
     # together along the arch normal for `bovine_trunk_length_m` past it before
     # each turns to its own heading; the LSA stays where it would be in a
@@ -179,10 +209,7 @@ class ArchParams:
 
     def validate(self) -> None:
         positive = [
-            f.name
-            for f in dataclasses.fields(self)
-            if f.name.endswith("_m")
-            and f.name not in ("tortuosity_amplitude_m", "aneurysm_diameter_m", "bovine_trunk_length_m")
+            f.name for f in dataclasses.fields(self) if f.name.endswith("_m") and f.name not in NON_NEGATIVE_FIELDS
         ]
         for name in positive:
             if not getattr(self, name) > 0:
@@ -215,8 +242,12 @@ class ArchParams:
             )
         if self.refine_levels < 0 or self.relax_iterations < 0:
             raise ValueError("ArchParams.refine_levels and relax_iterations must be >= 0.")
-        if self.bovine_trunk_length_m < 0:
-            raise ValueError("ArchParams.bovine_trunk_length_m must be >= 0.")
+        for name in NON_NEGATIVE_FIELDS:
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"ArchParams.{name} must be >= 0, got {getattr(self, name)!r}.")
+        for name in [f.name for f in dataclasses.fields(self) if f.name.endswith(("_takeoff_deg", "_roll_deg"))]:
+            if not -60.0 <= getattr(self, name) <= 60.0:
+                raise ValueError(f"ArchParams.{name} must be in [-60, 60] degrees, got {getattr(self, name)!r}.")
         if not -90.0 <= self.arch_rotation_deg <= 90.0:
             raise ValueError(f"ArchParams.arch_rotation_deg must be in [-90, 90], got {self.arch_rotation_deg!r}.")
         if self.arch_type not in ("I", "II", "III"):

@@ -12,8 +12,10 @@ Arguments are key=value pairs (values in YAML: numbers, [x,y,z] lists, true/fals
 
 build: `preset` (default type1) is the starting point; `arch_type=1|2|3` turns it
   into that clinical type (BCA-origin drop and arch elongation); `seed=N` instead
-  draws a random arch from `sample_arch_params` (arch type, size and diameter
-  scaling; restricted to `arch_type` if given); any ArchParams field (e.g.
+  draws a random arch from `sample_arch_params` (arch type, size, diameters and, with
+  `distribution=morphometry` (the default), how the branches leave the arch;
+  `distribution=fixed_branches` keeps the preset's branches; restricted to `arch_type` if
+  given); any ArchParams field (e.g.
   arch_height_m=0.04, aneurysm_diameter_m=0.05, bovine=true) is applied last.
   `out=DIR` writes the asset folder DIR (overwrite=true to replace it); without
   `out` it goes into the cache (~/.cache/cathsim_dmc/aortas or
@@ -54,7 +56,7 @@ from typing import Dict, List, Optional
 from cathsim_dmc.app.cli._common import USAGE_ERROR, fail
 
 COMMANDS = ("build", "import", "validate", "list")
-BUILD_KEYS = ("preset", "arch_type", "seed", "name", "out", "validate", "overwrite")
+BUILD_KEYS = ("preset", "arch_type", "seed", "distribution", "name", "out", "validate", "overwrite")
 IMPORT_KEYS = (
     "mesh",
     "entry",
@@ -128,6 +130,7 @@ def cmd_build(args: List[str]) -> int:
     import tempfile
 
     from cathsim_dmc.anatomy import (
+        DISTRIBUTIONS,
         PRESETS,
         ArchParams,
         arch_params,
@@ -157,14 +160,16 @@ def cmd_build(args: List[str]) -> int:
     name = str(opts.pop("name", "custom"))
     arch_type = opts.pop("arch_type", None)
     seed = opts.pop("seed", None)
+    distribution = str(opts.pop("distribution", DISTRIBUTIONS[0]))
+    if distribution not in DISTRIBUTIONS:
+        fail(f"distribution={distribution!r} is not valid; choose one of {list(DISTRIBUTIONS)}")
     if arch_type is not None:
         arch_type = normalize_arch_type(arch_type)
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             fail(f"seed={seed!r} is not valid; give an integer >= 0")
-        params = sample_arch_params(
-            seed, base=preset, arch_types=(arch_type,) if arch_type else ("I", "II", "III"), name=name
-        )
+        types = (arch_type,) if arch_type else ("I", "II", "III")
+        params = sample_arch_params(seed, base=preset, arch_types=types, name=name, distribution=distribution)
     else:
         params = PRESETS[preset].replace(name=name)
         if arch_type:
