@@ -123,7 +123,7 @@ def reverse_angle_lcca():
     (a wire alone stalled in its mouth: docs/results.md)."""
     from cathsim_dmc.tasks.randomized import anatomy_pool
 
-    return str(anatomy_pool(pool_size=2, pool_seed=200, base="bovine")[1])
+    return str(anatomy_pool(pool_size=2, pool_seed=200, base="bovine", distribution="fixed_branches")[1])
 
 
 def _expert_episode(aorta, catheter, seed=1):

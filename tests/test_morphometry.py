@@ -115,6 +115,7 @@ def test_the_morphometry_draws_vary_the_branches_within_their_sources(draws):
         assert p.edge_length_m <= min(p.branch_diameter_m(b) for b in ("bca", "lcca", "lsa"))
         for b, sd in zip(("bca", "lcca", "lsa"), m.takeoff_sd_deg):
             assert abs(getattr(p, f"{b}_takeoff_deg")) <= m.clip_sd * sd + 1e-9
+    assert all(sample_arch_params(s, base="bovine").bovine for s in range(5)), "a bovine base stays bovine"
     # Obliquity is drawn from the published distribution.
     assert len({p.arch_rotation_deg for p in draws}) == len(draws)
     assert len({p.lcca_takeoff_deg for p in draws}) > 0.8 * len(draws)  # some clipped at 2 sd

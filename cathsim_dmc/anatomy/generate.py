@@ -283,7 +283,8 @@ def _morphometry_sizes(rng, params: ArchParams, m: Morphometry = MORPHOMETRY) ->
     um = lambda x: round(float(x), 7)
     c = m.clip_sd
     drop_ratio = params.bca_origin_drop_m / params.lcca_diameter_m  # the arch type's measure
-    bovine = bool(rng.uniform() < m.bovine_fraction)
+    # A bovine base (base=bovine) keeps its variant: every arch drawn is bovine.
+    bovine = bool(rng.uniform() < m.bovine_fraction) or params.bovine
     trunk = m.short_trunk_m if rng.uniform() < 0.5 else m.long_trunk_m
     out = {"bovine": bovine}
     if bovine:

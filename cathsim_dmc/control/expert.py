@@ -13,6 +13,8 @@ interventionalist does with an angled wire:
 * **back off when lost**: if the tip leaves the centerline's lumen (a wrong branch) or
   progress along the centerline stalls, retract a few millimetres and aim again; after
   several back-offs without progress, measure progress afresh from where the tip is.
+  A wrong branch the tip has been in is remembered: while the tip passes its ostium again,
+  the aim is turned away from that branch's heading.
 * **end game**: at the target's depth but outside the 4 mm zone, the tip rests on the
   branch wall (its bend reaches across most of the lumen). Turn the bend towards the
   branch axis while stroking the wire past the target and back, one, two, then three
@@ -21,11 +23,13 @@ interventionalist does with an angled wire:
 
 With a catheter over the wire (`Navigate(catheter=...)`; actions then have a third entry,
 the catheter's carriage) the expert leaves it parked at the sheath unless the path turns
-back on itself before the target (more than `catheter_turn_deg` between where the path
-runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent at a
-reverse angle, as the LCCA does from a bovine trunk), where a wire alone cannot be pushed
-up the branch (its shaft lies along the parent and takes the push). There it does what an
-interventionalist does with a shaped catheter:
+sharply before the target (more than `catheter_turn_deg`, 50 degrees, between where the
+path runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent at
+a steep or reverse angle, as the LCCA does from a bovine trunk and the BCA from the
+ascending side of a type III arch). There a wire alone cannot be pushed up the branch (its
+shaft lies along the parent and takes the push), and in a wide branch its tip comes to rest
+on the wall short of the target. There it does what an interventionalist does with a shaped
+catheter:
 
 * **lead with the catheter**: the wire goes first, past the other ostia (a stiff curved
   tip would hook the first of them), and within `catheter_bring_up_m` of the target the
@@ -51,7 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath, component_across, signed_angle_rad
+from cathsim_dmc.anatomy.paths import CenterlinePath, CenterlineTree, component_across, signed_angle_rad
 
 
 class CenterlineExpert:
@@ -100,8 +104,11 @@ class CenterlineExpert:
         self.stroke_radii = 1.0
         self.stroke_step_radii = 0.25
         self.backoffs_before_reset = 8
+        # Wrong branches: once the tip has been in another branch, the bend is turned away
+        # from that branch (this share of the aim) while the tip passes its ostium.
+        self.avoid_gain = 1.0
         # With a catheter (see the module docstring).
-        self.catheter_turn_deg = 80.0
+        self.catheter_turn_deg = 50.0
         self.catheter_bring_up_m = 0.030
         self.catheter_lost_steps = 3  # the pair this long out of the path's lumen: the wire leads again
         self.catheter_stand_back_m = 0.040
@@ -114,6 +121,8 @@ class CenterlineExpert:
     def reset(self, env):
         task = env.task
         self._line = CenterlinePath(*task.aorta.asset.centerlines[task.target_name])
+        self._tree = CenterlineTree.from_asset(task.aorta.asset)
+        self._avoid = {}  # wrong branch entered -> (arc length on the path where it leaves, its heading)
         self._s = self._line.locate(task.tip_position_m(env.physics))[0]
         self._best_s = self._s
         self._since_progress = 0
@@ -213,6 +222,8 @@ class CenterlineExpert:
             self._since_progress += 1
         lost = outside > self.lost_margin_m
         self._lost_steps = self._lost_steps + 1 if lost else 0
+        if lost:
+            self._note_wrong_branch(tip, task.target_name)
         if remaining < self.min_progress_m:
             self._since_progress = 0  # at the target's depth: only the aim is left to fix
         if self._retracting == 0 and (lost or self._since_progress >= self.stall_steps):
@@ -228,6 +239,12 @@ class CenterlineExpert:
         # look-ahead point (relative to the tip base, across the shaft).
         # Near the target, aim at the target itself: the last look-ahead would overshoot.
         angle, off_axis = line.aim_error(tip, base, shaft, s, self.lookahead_radii * radius)
+        away = self._away_from_wrong_branch(s, radius)
+        if away is not None:
+            aim_point = line.at(min(s + self.lookahead_radii * radius, line.length_m))
+            aim = component_across(aim_point - base, shaft)
+            aim = aim - self.avoid_gain * np.linalg.norm(aim) * component_across(away, shaft)
+            angle = signed_angle_rad(component_across(tip - base, shaft), aim, shaft)
         straight_ahead = off_axis < 0.25
         bend = component_across(tip - base, shaft)
         rotation = np.clip(angle / self._max_rotation_step, -1.0, 1.0)
@@ -258,6 +275,26 @@ class CenterlineExpert:
         else:
             insertion = 0.0
         return np.array([insertion, rotation], dtype=np.float32)
+
+    def _note_wrong_branch(self, tip, target):
+        """Remember the branch the tip is lost in (if it is in one): where it leaves the path
+        to the target and which way it heads from there."""
+        name, _, depth = self._tree.locate(tip, prefer=target)
+        if name == target or name in self._avoid or depth > 0:
+            return
+        other = self._tree.lines[name]
+        s_leave = self._tree.junction_arclength_m(target, name)
+        s_other = self._tree.junction_arclength_m(name, target)
+        heading = other.at(s_other + 2 * other.radius_at(s_other)) - other.at(s_other)
+        self._avoid[name] = (s_leave, heading / max(np.linalg.norm(heading), 1e-12))
+
+    def _away_from_wrong_branch(self, s, radius):
+        """The heading of a wrong branch entered before whose ostium the tip now is (within
+        two lumen radii either side), or None."""
+        for s_leave, heading in self._avoid.values():
+            if s_leave - 2 * radius <= s <= s_leave + 2 * radius:
+                return heading
+        return None
 
     def _end_game(self, tip, shaft, bend, remaining):
         """At the target's depth but not within reach: the tip rests on the branch wall.
