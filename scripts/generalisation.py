@@ -350,8 +350,8 @@ def _metrics(folder: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-# A septum between the BCA and LCCA ostia thinner than this (the wall's 2 mm) makes the
-# "close ostia" variant of the report.
+# A septum between two neighbouring ostia (BCA-LCCA or LCCA-LSA) thinner than this (the
+# wall's 2 mm) makes the "close ostia" variant of the report.
 CLOSE_OSTIA_GAP_M = 0.002
 VARIANTS = ("separate", "close ostia", "bovine")
 
@@ -360,7 +360,8 @@ def variant_of(params: dict) -> str:
     """An arch's branching variant from its generator parameters (meta.json's params)."""
     if params.get("bovine"):
         return "bovine"
-    return "close ostia" if params["bca_lcca_gap_m"] < CLOSE_OSTIA_GAP_M else "separate"
+    gap = min(params["bca_lcca_gap_m"], params["lcca_lsa_gap_m"])
+    return "close ostia" if gap < CLOSE_OSTIA_GAP_M else "separate"
 
 
 def _pool_labels() -> tuple:

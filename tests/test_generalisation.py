@@ -174,3 +174,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, repo_root):
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0], result.stderr
     assert not any(tmp_path.iterdir())  # nothing was run
+
+
+def test_the_variant_of_an_arch_is_bovine_then_close_ostia_then_separate(repo_root):
+    script = load_script(repo_root / "scripts" / "generalisation.py")
+    apart = {"bovine": False, "bca_lcca_gap_m": 0.004, "lcca_lsa_gap_m": 0.006}
+    assert script.variant_of(apart) == "separate"
+    assert script.variant_of({**apart, "lcca_lsa_gap_m": 0.0015}) == "close ostia"
+    assert script.variant_of({**apart, "bca_lcca_gap_m": 0.0}) == "close ostia"
+    assert script.variant_of({**apart, "bca_lcca_gap_m": 0.0, "bovine": True}) == "bovine"

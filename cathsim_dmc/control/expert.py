@@ -23,13 +23,13 @@ interventionalist does with an angled wire:
 
 With a catheter over the wire (`Navigate(catheter=...)`; actions then have a third entry,
 the catheter's carriage) the expert leaves it parked at the sheath unless the path turns
-sharply before the target (more than `catheter_turn_deg`, 50 degrees, between where the
-path runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent at
-a steep or reverse angle, as the LCCA does from a bovine trunk and the BCA from the
-ascending side of a type III arch). There a wire alone cannot be pushed up the branch (its
-shaft lies along the parent and takes the push), and in a wide branch its tip comes to rest
-on the wall short of the target. There it does what an interventionalist does with a shaped
-catheter:
+back on itself before the target (more than `catheter_turn_deg`, 80 degrees, between where
+the path runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent
+at a reverse angle, as the LCCA does from a bovine trunk), where a wire alone cannot be
+pushed up the branch (its shaft lies along the parent and takes the push), or the target
+lies in a wide branch (a radius of at least 4.5 mm there: the BCA) after a turn of more than
+`catheter_wide_turn_deg`, 50 degrees, where the wire's tip comes to rest on the wall short
+of the target. There it does what an interventionalist does with a shaped catheter:
 
 * **lead with the catheter**: the wire goes first, past the other ostia (a stiff curved
   tip would hook the first of them), and within `catheter_bring_up_m` of the target the
@@ -108,7 +108,11 @@ class CenterlineExpert:
         # from that branch (this share of the aim) while the tip passes its ostium.
         self.avoid_gain = 1.0
         # With a catheter (see the module docstring).
-        self.catheter_turn_deg = 50.0
+        self.catheter_turn_deg = 80.0
+        # A wide branch (radius at the target at least this) takes the catheter from a
+        # smaller turn: there the wire's tip comes to rest on the wall short of the target.
+        self.catheter_wide_radius_m = 0.0045
+        self.catheter_wide_turn_deg = 50.0
         self.catheter_bring_up_m = 0.030
         self.catheter_lost_steps = 3  # the pair this long out of the path's lumen: the wire leads again
         self.catheter_stand_back_m = 0.040
@@ -140,7 +144,9 @@ class CenterlineExpert:
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
         self._schedule = self._stroke_schedule()
         self._has_catheter = getattr(task, "catheter", None) is not None
-        self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > self.catheter_turn_deg
+        wide = self._target_radius >= self.catheter_wide_radius_m
+        turn_limit = self.catheter_wide_turn_deg if wide else self.catheter_turn_deg
+        self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > turn_limit
         self._catheter_phase = "wire"
         self._held_distance_m = None
         self._lost_steps = 0
