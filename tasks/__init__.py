@@ -99,6 +99,7 @@ def build_task(
     many degrees (negative: right anterior oblique; 0, the presets' default: AP).
     `tracking_noise_m` and `registration_error_m` (standard deviations, metres) override
     the `roadmap` observation's noise (`cathsim_dmc.tasks.roadmap`).
+    `safe_force_n` sets the wall force a safe success stays under (`Navigate`).
     `physics="fast"` (default), `"fast_field"` or `"accurate"` picks the physics settings (`Navigate`).
     """
     validate(task, aorta, obs)

@@ -45,6 +45,7 @@ def check_options(
     start_rotation_rad=None,
     start_rotation_jitter_rad=None,
     start_insertion_jitter_m=None,
+    safe_force_n=None,
     **others,
 ) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
@@ -87,6 +88,8 @@ def check_options(
             f"start_insertion_jitter_m={start_insertion_jitter_m!r} m is deeper than a start below the "
             f"arch allows; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m"
         )
+    if safe_force_n is not None:
+        check_number("safe_force_n", safe_force_n, 0.0, inclusive=False)
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,10 @@ class Navigate(composer.Task):
     sheath (`containment`); anywhere else it has escaped, which truncates the episode like
     a divergence (`escaped`).
 
+    Safe success (the evaluation's `safe_success_pct`, not the reward): the target reached
+    without any control step's wall force (`mean_wall_force_n`, the step's mean) above
+    `safe_force_n` newtons.
+
     Catheter: `catheter="angled_5f"` (or a `Catheter`) puts a shaped catheter over the wire
     (`CatheterDrive`, docs/model.md#catheter). Actions then have a third entry, the
     catheter carriage's speed; the catheter starts parked with its tip at the sheath's,
@@ -162,6 +169,7 @@ class Navigate(composer.Task):
         extra_observations: tuple = (),
         physics: str = task_defaults.PHYSICS,
         catheter: Catheter | str | None = None,
+        safe_force_n: float = task_defaults.SAFE_FORCE_N,
     ):
         if target not in aorta.targets:
             raise ValueError(
@@ -177,12 +185,14 @@ class Navigate(composer.Task):
             start_rotation_rad=start_rotation_rad,
             start_rotation_jitter_rad=start_rotation_jitter_rad,
             start_insertion_jitter_m=start_insertion_jitter_m,
+            safe_force_n=safe_force_n,
         )
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._target_name = target
         self._physics_setting = physics
         self._catheter_drive = None if catheter is None else CatheterDrive(catheter_named(catheter), guidewire, robot)
         self._delta_m = float(delta_m)
+        self._safe_force_n = float(safe_force_n)
         self._max_steps = int(max_steps)
         self._start = StartPose(
             float(start_insertion_jitter_m), float(start_rotation_rad), float(start_rotation_jitter_rad)
@@ -265,6 +275,11 @@ class Navigate(composer.Task):
     @property
     def max_steps(self) -> int:
         return self._max_steps
+
+    @property
+    def safe_force_n(self) -> float:
+        """A success is safe when no control step's wall force exceeded this, newtons."""
+        return self._safe_force_n
 
     @property
     def start_pose(self) -> StartPose:

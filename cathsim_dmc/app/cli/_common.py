@@ -336,7 +336,7 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
         dense=task.dense,
         max_steps=task.max_steps,
     )
-    for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m"):
+    for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m", "safe_force_n"):
         # Only a changed start: a dataset's task options (compared when it is continued) stay as before.
         if task.get(key) is not None and task[key] != getattr(TaskConfig, key):
             kwargs[key] = task[key]
