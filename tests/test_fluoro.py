@@ -115,6 +115,21 @@ def test_the_fluoro_image_is_a_noisy_detector_frame(fluoro_env):
     np.testing.assert_array_equal(_drive(env, 20)["pixels"], obs["pixels"])
 
 
+@pytest.mark.parametrize("quanta", [20.0, 5000.0])  # the Poisson law itself, and its normal limit
+def test_the_detector_counts_quanta(quanta):
+    level = 100.0  # room above it for the noise in 8 bits
+    image = np.full((200, 200, 1), level, np.uint8)
+    image[:, 100:] = 25  # a quarter of the background's transmission
+    frame = detector.fluoroscopy_frame(image, np.random.RandomState(0), quanta, 0.0, level).astype(float)
+    for part, t in ((frame[:, :100], 1.0), (frame[:, 100:], 0.25)):
+        counts = part * quanta / level  # back to quanta: mean and variance are the same number
+        assert np.mean(counts) == pytest.approx(t * quanta, rel=0.02)
+        rounding = (quanta / level) ** 2 / 12  # the 8-bit levels' own variance, in quanta
+        assert np.var(counts) == pytest.approx(t * quanta + rounding, rel=0.06)
+    again = detector.fluoroscopy_frame(image, np.random.RandomState(0), quanta, 0.0, level)
+    np.testing.assert_array_equal(again, frame.astype(np.uint8))
+
+
 def test_a_lower_dose_is_noisier_and_a_wider_blur_spreads_the_wire():
     env = CathSimEnv(task="bca", aorta="type1", obs="fluoro", detector_dose_ngy=3.4, blur_mm=2.0)
     try:

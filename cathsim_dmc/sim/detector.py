@@ -37,6 +37,11 @@ FLUORO_DOSE_NGY = 34.0
 MAGNIFICATION = 1.0 / (1.0 - 0.42)
 
 
+# Above this many quanta in every pixel a frame draws the Poisson law's normal limit (same
+# mean and variance; its skewness, 1/sqrt(quanta), is below 0.1).
+NORMAL_QUANTA = 100.0
+
+
 def background_quanta(dose_ngy: float, pixel_m: float) -> float:
     """Noise-equivalent quanta that one image pixel (`pixel_m` wide at the vessel)
     collects from the background at a detector dose of `dose_ngy` per frame."""
@@ -57,6 +62,10 @@ def fluoroscopy_frame(
             image.shape
         )
     if quanta > 0:
-        counts = random_state.poisson(np.maximum(frame, 0.0) * (quanta / background_level))
+        mean = np.maximum(frame, 0.0) * (quanta / background_level)
+        if mean.min() >= NORMAL_QUANTA:  # the Poisson law's normal limit, at half its cost
+            counts = mean + np.sqrt(mean) * random_state.standard_normal(mean.shape)
+        else:
+            counts = random_state.poisson(mean)
         frame = counts * (background_level / quanta)
     return np.round(frame).clip(0, 255).astype(np.uint8)
