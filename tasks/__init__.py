@@ -87,6 +87,10 @@ def build_task(
     lao_deg: float | None = None,
     tracking_noise_m: float | None = None,
     registration_error_m: float | None = None,
+    detector_dose_ngy: float | None = None,
+    blur_mm: float | None = None,
+    view_deg_range=None,
+    cranial_deg_range=None,
     **task_kwargs,
 ) -> Navigate:
     """The Navigate task for a (target, aorta) pair with entity parameters overridden.
@@ -98,7 +102,11 @@ def build_task(
     turns the top camera (images and videos) into a left anterior oblique view of that
     many degrees (negative: right anterior oblique; 0, the presets' default: AP).
     `tracking_noise_m` and `registration_error_m` (standard deviations, metres) override
-    the `roadmap` observation's noise (`cathsim_dmc.tasks.roadmap`).
+    the `roadmap` observation's noise (`cathsim_dmc.tasks.roadmap`) and of the image-plane
+    tracking (`cathsim_dmc.tasks.tracking2d`). `detector_dose_ngy` and `blur_mm` set the
+    fluoroscopic detector of the `fluoro` style (`cathsim_dmc.sim.detector`);
+    `view_deg_range` and `cranial_deg_range` ([low, high] degrees) draw a C-arm view per
+    episode (`Navigate`). `safe_force_n` sets the wall force a safe success stays under.
     `physics="fast"` (default), `"fast_field"` or `"accurate"` picks the physics settings (`Navigate`).
     """
     validate(task, aorta, obs)
@@ -126,6 +134,10 @@ def build_task(
         lao_deg=lao_deg,
         tracking_noise_m=tracking_noise_m,
         registration_error_m=registration_error_m,
+        detector_dose_ngy=detector_dose_ngy,
+        blur_mm=blur_mm,
+        view_deg_range=view_deg_range,
+        cranial_deg_range=cranial_deg_range,
     )
     settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))

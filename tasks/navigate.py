@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import dm_env.specs
+import mujoco
 import numpy as np
 from dm_control import composer
 
@@ -15,6 +16,7 @@ from cathsim_dmc.core.checks import check_number
 from cathsim_dmc.entities import Aorta, FollowerRobot, Guidewire
 from cathsim_dmc.entities.catheter import Catheter, CatheterDrive, catheter_named
 from cathsim_dmc.sim import physics as cs_physics
+from cathsim_dmc.sim.arena import top_camera_frame
 from cathsim_dmc.sim.render import ObservationSettings
 from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
@@ -45,6 +47,7 @@ def check_options(
     start_rotation_rad=None,
     start_rotation_jitter_rad=None,
     start_insertion_jitter_m=None,
+    safe_force_n=None,
     **others,
 ) -> None:
     """ValueError naming the parameter for a task setting the task cannot use.
@@ -87,6 +90,8 @@ def check_options(
             f"start_insertion_jitter_m={start_insertion_jitter_m!r} m is deeper than a start below the "
             f"arch allows; choose one in [0, {MAX_START_INSERTION_JITTER_M}] m"
         )
+    if safe_force_n is not None:
+        check_number("safe_force_n", safe_force_n, 0.0, inclusive=False)
 
 
 @dataclass(frozen=True)
@@ -134,6 +139,16 @@ class Navigate(composer.Task):
     sheath (`containment`); anywhere else it has escaped, which truncates the episode like
     a divergence (`escaped`).
 
+    Safe success (the evaluation's `safe_success_pct`, not the reward): the target reached
+    without any control step's wall force (`mean_wall_force_n`, the step's mean) above
+    `safe_force_n` newtons.
+
+    C-arm view: with the observation settings' `view_deg_range` (and `cranial_deg_range`),
+    every episode draws its own view of the top camera (images, image-plane tracking,
+    videos): LAO and cranial angles uniform in those ranges, from the episode's random state,
+    after the start pose. Without them the view is the fixed `lao_deg` (AP by default) and
+    no draw is made. `carm_view_deg` is the episode's (LAO, cranial) angles.
+
     Catheter: `catheter="angled_5f"` (or a `Catheter`) puts a shaped catheter over the wire
     (`CatheterDrive`, docs/model.md#catheter). Actions then have a third entry, the
     catheter carriage's speed; the catheter starts parked with its tip at the sheath's,
@@ -162,6 +177,7 @@ class Navigate(composer.Task):
         extra_observations: tuple = (),
         physics: str = task_defaults.PHYSICS,
         catheter: Catheter | str | None = None,
+        safe_force_n: float = task_defaults.SAFE_FORCE_N,
     ):
         if target not in aorta.targets:
             raise ValueError(
@@ -177,12 +193,14 @@ class Navigate(composer.Task):
             start_rotation_rad=start_rotation_rad,
             start_rotation_jitter_rad=start_rotation_jitter_rad,
             start_insertion_jitter_m=start_insertion_jitter_m,
+            safe_force_n=safe_force_n,
         )
         self._aorta, self._guidewire, self._robot = aorta, guidewire, robot
         self._target_name = target
         self._physics_setting = physics
         self._catheter_drive = None if catheter is None else CatheterDrive(catheter_named(catheter), guidewire, robot)
         self._delta_m = float(delta_m)
+        self._safe_force_n = float(safe_force_n)
         self._max_steps = int(max_steps)
         self._start = StartPose(
             float(start_insertion_jitter_m), float(start_rotation_rad), float(start_rotation_jitter_rad)
@@ -214,9 +232,10 @@ class Navigate(composer.Task):
                 f"lists the asset's problems"
             )
         self.set_timesteps(control_timestep=control_timestep_s, physics_timestep=guidewire.physics_timestep_s)
-        self._task_observables, self._top_view, self._roadmap = task_observables(
+        self._task_observables, self._top_view, self._roadmap, self._image_tracker = task_observables(
             self, observations, self._extra_observations
         )
+        self._carm_view_deg = (float(observations.lao_deg), 0.0)
 
         self._step_count = 0
         self._steps_at_target_depth = 0
@@ -267,6 +286,27 @@ class Navigate(composer.Task):
         return self._max_steps
 
     @property
+    def success_radius_m(self) -> float:
+        """The tip within this distance of the target succeeds (`delta_m`), metres."""
+        return self._delta_m
+
+    @property
+    def safe_force_n(self) -> float:
+        """A success is safe when no control step's wall force exceeded this, newtons."""
+        return self._safe_force_n
+
+    @property
+    def registration_offset_m(self) -> np.ndarray:
+        """The episode's registration error of the roadmap (`roadmap`, `roadmap_2d`, the
+        overlay): a world vector, metres."""
+        return self._roadmap.registration_offset_m
+
+    @property
+    def carm_view_deg(self) -> tuple:
+        """The episode's C-arm view: (LAO, cranial) angles in degrees (negative: RAO, caudal)."""
+        return self._carm_view_deg
+
+    @property
     def start_pose(self) -> StartPose:
         return self._start
 
@@ -298,6 +338,7 @@ class Navigate(composer.Task):
         # The wire takes its rest shape in its own initialize_episode hook.
         insertion, rotation = self._start.draw(random_state)
         self._robot.set_pose(physics, insertion, rotation)
+        self._draw_view(physics, random_state)
         if self._catheter_drive is not None:
             self._catheter_drive.initialize_episode(physics)
         self._step_count = 0
@@ -328,6 +369,34 @@ class Navigate(composer.Task):
             self._track_roadmap(physics)
             if self._task_observables["roadmap"].enabled:
                 self._roadmap.measure(physics)
+        if self._observes_image_plane():
+            self._image_tracker.start(random_state, self._roadmap.registration_offset_m)
+            self._image_tracker.measure(physics)
+
+    def _draw_view(self, physics, random_state) -> None:
+        """The episode's C-arm view, drawn when the settings give a range (the camera is
+        left as built otherwise: nothing is drawn, nothing changes)."""
+        settings = self._settings
+        if settings.view_deg_range is None and settings.cranial_deg_range is None:
+            return
+        lao = random_state.uniform(*settings.view_deg_range) if settings.view_deg_range else settings.lao_deg
+        cranial = random_state.uniform(*settings.cranial_deg_range) if settings.cranial_deg_range else 0.0
+        self._carm_view_deg = (float(lao), float(cranial))
+        camera = physics.bind(self._scene.arena.top_camera)
+        camera.pos, camera.quat, camera.fovy = top_camera_frame(self._aorta.bounds_m, lao, cranial)
+        # Its world frame too: with sleeping enabled (the fast physics), MuJoCo computes the
+        # frames of what hangs from the world body only when data is reset, which happened
+        # before this hook; the next reset recomputes the same frame from the model.
+        body = int(physics.model.cam_bodyid[camera.element_id])
+        rotation = np.zeros(9)
+        mujoco.mju_quat2Mat(rotation, np.asarray(camera.quat, dtype=float))
+        parent = physics.data.xmat[body].reshape(3, 3)
+        camera.xpos = physics.data.xpos[body] + parent @ camera.pos
+        camera.xmat = (parent @ rotation.reshape(3, 3)).ravel()
+
+    def _observes_image_plane(self) -> bool:
+        observables = self._task_observables
+        return observables["tracking_2d"].enabled or observables["roadmap_2d"].enabled
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])
@@ -350,6 +419,8 @@ class Navigate(composer.Task):
             self._reward_distance_m = self.reward_distance_m(physics)
         if self._observes_roadmap():
             self._track_roadmap(physics)
+        if self._observes_image_plane():
+            self._image_tracker.measure(physics)
 
     def _observes_roadmap(self) -> bool:
         observables = self._task_observables

@@ -11,8 +11,10 @@ import numpy as np
 from dm_control.composer.observation import observable
 
 from cathsim_dmc.core.registry import EXTRA_OBSERVATIONS
+from cathsim_dmc.sim import detector, raster
 from cathsim_dmc.sim.render import ObservationSettings, TopView, image_noise
 from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS, RoadmapTracker
+from cathsim_dmc.tasks.tracking2d import ImageTracker
 
 
 def check_extra_observations(extra_observations) -> tuple:
@@ -25,16 +27,17 @@ def check_extra_observations(extra_observations) -> tuple:
 
 def task_observables(
     task, settings: ObservationSettings, extra_observations: tuple = ()
-) -> tuple[dict, TopView, RoadmapTracker]:
+) -> tuple[dict, TopView, RoadmapTracker, ImageTracker]:
     """(name -> observable, the `TopView` drawing the images, the `RoadmapTracker` of the
-    roadmap observation) for `task` (a `Navigate`), those of `settings` and
-    `extra_observations` enabled."""
+    roadmap observation, the `ImageTracker` of the image-plane observations) for `task`
+    (a `Navigate`), those of `settings` and `extra_observations` enabled."""
     robot, guidewire = task.robot, task.guidewire
     wire_joints = guidewire.joints
     top_view = TopView(
         settings.image_size, renderer=settings.renderer, wire=guidewire, vessel_geom_id=task.aorta.visual_geom_id
     )
     roadmap = RoadmapTracker(task, settings.tracking_noise_m, settings.registration_error_m)
+    image_tracker = ImageTracker(task, settings.tracking_noise_m)
 
     def catheter_features():
         # With a catheter: its tip's offset behind the wire's tip over the robot's stroke.
@@ -69,6 +72,19 @@ def task_observables(
             lambda physics: np.array([min(task.steps_at_target_depth, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
         ),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
+        # The registered roadmap overlaid on the fluoroscope's view: the lumen's silhouette
+        # and the target, both off by the episode's registration error.
+        "roadmap_overlay": observable.Generic(
+            lambda physics: top_view.roadmap_overlay(
+                physics, roadmap.registration_offset_m, task.target_position_m, task.success_radius_m
+            )
+        ),
+        # The wire tracked in the image, and the roadmap projected into it (tasks/tracking2d.py),
+        # as the task measured them at the end of the step.
+        "tracking_2d": observable.Generic(image_tracker.tracked),
+        "roadmap_2d": observable.Generic(image_tracker.roadmap),
+        # The C-arm's angles as it reports them: LAO (negative: RAO) and cranial (negative: caudal), radians.
+        "carm_view": observable.Generic(lambda physics: np.radians(np.asarray(task.carm_view_deg, dtype=float))),
         "guidewire_mask": observable.Generic(top_view.mask),
         "tip_position": observable.MJCFFeature("xpos", guidewire.tip_site),
         # The step's wall force: the total averaged over its physics steps (at reset,
@@ -79,4 +95,25 @@ def task_observables(
         obs_item.enabled = name in settings.enabled or name in extra_observations
     if settings.noise_std > 0:
         obs["pixels"].corruptor = image_noise(settings.noise_std)
-    return obs, top_view, roadmap
+    if settings.style == "fluoro" and (settings.detector_dose_ngy > 0 or settings.blur_mm > 0):
+        obs["pixels"].corruptor = detector_frame(top_view, settings)
+    return obs, top_view, roadmap, image_tracker
+
+
+def detector_frame(top_view: TopView, settings: ObservationSettings):
+    """Observation corruptor: the clean fluoro image as one detector frame of
+    `settings.detector_dose_ngy` and `settings.blur_mm` (`cathsim_dmc.sim.detector`), its
+    quanta drawn from the environment's random state (a seeded episode stays reproducible).
+    The pixel's size at the vessel is the episode's view's. With `noise_std` too, the
+    Gaussian grey-level noise is added after."""
+    grey = image_noise(settings.noise_std) if settings.noise_std > 0 else None
+
+    def corrupt(value, random_state):
+        pixel_m = top_view.drawn_pixel_size_m  # the image just drawn (the corruptor gets no physics)
+        quanta = detector.background_quanta(settings.detector_dose_ngy, pixel_m)
+        frame = detector.fluoroscopy_frame(
+            value, random_state, quanta, 1e-3 * settings.blur_mm / pixel_m, 255.0 * raster.FLUORO_BACKGROUND
+        )
+        return frame if grey is None else grey(frame, random_state)
+
+    return corrupt

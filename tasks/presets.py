@@ -21,7 +21,25 @@ PRESET_OBSERVABLES = (
     "roadmap",
     "robot_state",
     "target_depth_time",
+    "roadmap_overlay",
+    "tracking_2d",
+    "roadmap_2d",
+    "carm_view",
 )
+# Options a preset file may set (besides name and observables).
+PRESET_OPTIONS = (
+    "renderer",
+    "style",
+    "image_size",
+    "lao_deg",
+    "tracking_noise_m",
+    "registration_error_m",
+    "detector_dose_ngy",
+    "blur_mm",
+    "view_deg_range",
+    "cranial_deg_range",
+)
+MAX_VIEW_DEG = 45.0  # the largest LAO/RAO and cranial/caudal angle a per-episode view may draw
 
 
 def load_presets(folder) -> dict:
@@ -29,8 +47,7 @@ def load_presets(folder) -> dict:
 
     A preset file is the one definition of its preset, for the command-line tools (Hydra's
     `obs=` group) and the Python API (`tasks.load(obs=...)`) alike: `name`, the
-    `observables` it enables, and optionally `renderer`, `style`, `image_size`, `lao_deg`,
-    `tracking_noise_m`, `registration_error_m`.
+    `observables` it enables, and optionally the options of `PRESET_OPTIONS`.
     """
     import yaml
 
@@ -43,11 +60,10 @@ def load_presets(folder) -> dict:
                 f"{path}: a preset needs name: {path.stem} and observables from "
                 f"{list(PRESET_OBSERVABLES)} (unknown: {unknown})"
             )
-        options = {
-            key: spec[key]
-            for key in ("renderer", "style", "image_size", "lao_deg", "tracking_noise_m", "registration_error_m")
-            if spec.get(key) is not None
-        }
+        options = {key: spec[key] for key in PRESET_OPTIONS if spec.get(key) is not None}
+        for key in ("view_deg_range", "cranial_deg_range"):
+            if key in options:
+                options[key] = tuple(options[key])
         presets[path.stem] = ObservationSettings(frozenset(spec["observables"]), **options)
     return presets
 
@@ -60,6 +76,9 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         raise ValueError(f"obs={preset!r} is not a preset; choose one of {sorted(OBSERVATION_PRESETS)}")
     settings = OBSERVATION_PRESETS[preset]
     if overrides:
+        for key in ("view_deg_range", "cranial_deg_range"):
+            if overrides.get(key) is not None:
+                overrides[key] = check_view_range(key, overrides[key])
         settings = ObservationSettings(**{**settings.__dict__, **overrides})
     check_number("image_size", settings.image_size, 1, whole=True)  # 0 divides by zero in the renderer
     if settings.style not in IMAGE_STYLES:
@@ -79,4 +98,31 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         check_number(key, getattr(settings, key), 0)  # a standard deviation in metres
     if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
         raise ValueError(f"lao_deg={settings.lao_deg!r} must be between -90 and 90 (degrees; 0 = AP)")
+    for key in ("detector_dose_ngy", "blur_mm"):
+        if check_number(key, getattr(settings, key), 0) > 0 and settings.style != "fluoro":
+            raise ValueError(
+                f"{key}={getattr(settings, key)!r} is the fluoroscopic detector's; it needs style='fluoro'"
+            )
+    for key in ("view_deg_range", "cranial_deg_range"):
+        if getattr(settings, key) is not None:
+            check_view_range(key, getattr(settings, key))
+    if settings.view_deg_range is not None and settings.lao_deg != 0:
+        raise ValueError(
+            f"lao_deg={settings.lao_deg!r} and view_deg_range={list(settings.view_deg_range)}: give one, "
+            f"a fixed view or a range to draw one from per episode"
+        )
     return settings
+
+
+def check_view_range(key: str, value) -> tuple:
+    """`value` as a (low, high) pair of angles in degrees within +-MAX_VIEW_DEG; ValueError
+    naming `key` otherwise."""
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{key}={value!r} must be [low, high] in degrees, e.g. [-45, 45]") from None
+    if not -MAX_VIEW_DEG <= low <= high <= MAX_VIEW_DEG:
+        raise ValueError(
+            f"{key}={[low, high]} must be [low, high] with -{MAX_VIEW_DEG:g} <= low <= high <= {MAX_VIEW_DEG:g} degrees"
+        )
+    return (low, high)

@@ -87,6 +87,11 @@ class RoadmapTracker:
         return self._features.copy()
 
     @property
+    def registration_offset_m(self) -> np.ndarray:
+        """This episode's registration error: the roadmap lies this world vector off (metres)."""
+        return self._offset.copy()
+
+    @property
     def remaining_m(self) -> float:
         """The last measurement's length along the roadmap from the nearest point to the target (m)."""
         return self._line.length_m - self._s

@@ -71,6 +71,11 @@ def test_expert_reaches_the_lcca(tmp_path):
     assert 0.15 < optimal_m < travelled_m
     assert report["summary"]["spl_pct"]["mean"] == pytest.approx(100 * optimal_m / travelled_m, rel=1e-6)
     assert 50 < report["summary"]["spl_pct"]["mean"] < 100
+    # Safe success: reached without any step's wall force (the step mean) above the task's 1.5 N.
+    assert report["safe_force_n"] == 1.5 and float(data["safe_force_n"]) == 1.5
+    safe = bool(np.all(data["mean_contact_force_n"] <= 1.5))
+    assert report["summary"]["safe_success_pct"]["mean"] == (100 if safe else 0)
+    assert "Safe Success (%)" in (tmp_path / "run" / "metrics.md").read_text()
 
 
 def test_multirun_writes_one_combined_table(tmp_path):
@@ -186,6 +191,19 @@ def test_one_function_turns_every_tools_config_into_environment_arguments():
     assert env_kwargs(_compose("eval"), policy=trained_accurate)["physics"] == "accurate"
     # Tools without an obs group (teleop, export) leave the preset to the environment.
     assert "obs" not in env_kwargs(_compose("teleop", ["aorta=type2"]))
+
+
+def test_the_safe_success_threshold_is_a_task_option():
+    from cathsim_dmc import tasks
+    from cathsim_dmc.app.cli._common import env_kwargs
+
+    assert "safe_force_n" not in env_kwargs(_compose("eval")), "the default is recorded as before the option existed"
+    kwargs = env_kwargs(_compose("eval", ["task.safe_force_n=2.5"]))
+    assert kwargs["safe_force_n"] == 2.5
+    assert tasks.build_task("bca", "type1", safe_force_n=2.5).safe_force_n == 2.5
+    assert tasks.build_task("bca", "type1").safe_force_n == 1.5
+    with pytest.raises(ValueError, match=r"safe_force_n=0"):
+        env_kwargs(_compose("eval", ["task.safe_force_n=0"]))
 
 
 def test_an_asset_folder_is_an_aorta_and_names_the_run_and_the_table(tmp_path):

@@ -192,6 +192,7 @@ def test_the_task_defaults_the_schema_shows_are_the_task_constants():
         "START_ROTATION_RAD": "start_rotation_rad",
         "START_ROTATION_JITTER_RAD": "start_rotation_jitter_rad",
         "START_INSERTION_JITTER_M": "start_insertion_jitter_m",
+        "SAFE_FORCE_N": "safe_force_n",
     }
     constants = {name: value for name, value in vars(task_defaults).items() if name.isupper()}
     assert set(constants) == set(shown_as)

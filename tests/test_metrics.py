@@ -51,7 +51,9 @@ def test_summarize_and_table():
     table = metrics.markdown_table([({"Target": "BCA", "Policy": "test"}, summary)])
     lines = table.strip().splitlines()
     assert lines[0].startswith("| Target | Policy | Force (N)") and len(lines) == 3
-    assert "| BCA | test | 2.00 ± 1.00 | 2.0 ± 1.0 | 1 ± 0 | 50 ± 50 | 50 ± 50 | 50 ± 50 |" == lines[2]
+    # The paper's six columns, then safe success (the success at 1 N is safe at 1.5 N).
+    assert "| BCA | test | 2.00 ± 1.00 | 2.0 ± 1.0 | 1 ± 0 | 50 ± 50 | 50 ± 50 | 50 ± 50 | 50 ± 50 |" == lines[2]
+    assert lines[0].endswith("| SPL (%) | Safe Success (%) |")
 
 
 def test_trajectory_metrics_splits_episodes():
@@ -116,3 +118,41 @@ def test_trajectory_dataset_round_trip(tmp_path):
     assert not set(data.episode[test]) & set(data.episode[train])
     with pytest.raises(ValueError, match="save_observations"):
         TrajectoryDataset(path, inputs=("obs_guidewire_mask",))
+
+
+def test_safe_success_needs_every_step_at_or_under_the_threshold():
+    tips = [[0, 0.01, 0], [0, 0.02, 0], [0, 0.03, 0]]
+    gentle = metrics.episode_metrics(np.zeros(3), tips, [0.4, 1.5, 0.9], success=True, optimal_path_m=0.03)
+    rough = metrics.episode_metrics(np.zeros(3), tips, [0.4, 1.6, 0.9], success=True, optimal_path_m=0.03)
+    missed = metrics.episode_metrics(np.zeros(3), tips, [0.1, 0.1, 0.1], success=False, optimal_path_m=0.03)
+    assert metrics.SAFE_SUCCESS_FORCE_N == 1.5
+    assert gentle.safe_success_pct == 100.0 and rough.safe_success_pct == 0.0 and missed.safe_success_pct == 0.0
+    # The paper's metrics do not change with it: one step of 1.6 N is still "safe" at the paper's 2 N.
+    assert rough.success_pct == 100.0 and rough.safety_pct == 100.0 and rough.force_n == pytest.approx(2.9 / 3)
+    lenient = metrics.episode_metrics(np.zeros(3), tips, [0.4, 1.6, 0.9], True, 0.03, safe_force_n=2.0)
+    assert lenient.safe_success_pct == 100.0
+
+
+def test_safe_success_reads_the_threshold_the_trajectory_file_records():
+    arrays = {
+        "episode": np.array([0, 0, 1]),
+        "tip_position_m": np.array([[0, 0.01, 0], [0, 0.02, 0], [0.01, 0, 0]]),
+        "contact_force_n": np.zeros(3),
+        "mean_contact_force_n": np.array([0.5, 1.8, 0.2]),
+        "success": np.array([False, True, True]),
+        "start_tip_position_m": np.zeros((2, 3)),
+        "optimal_path_length_m": np.array([0.02, 0.01]),
+    }
+    first, second = metrics.trajectory_metrics(arrays)
+    assert (first.safe_success_pct, second.safe_success_pct) == (0.0, 100.0)  # 1.8 N > the default 1.5 N
+    first, _ = metrics.trajectory_metrics({**arrays, "safe_force_n": np.float32(2.0)})
+    assert first.safe_success_pct == 100.0
+
+
+def test_reports_written_before_safe_success_still_summarize():
+    old = {k: 1.0 for k in metrics.METRIC_COLUMNS}  # a per-episode row of an older metrics.json
+    episode = metrics.EpisodeMetrics(**old)
+    summary = metrics.summarize([episode, episode])
+    assert set(summary) == set(metrics.METRIC_COLUMNS)
+    row = metrics.markdown_table([({"Policy": "old"}, summary)]).strip().splitlines()[2]
+    assert row.endswith("| 1 ± 0 | - |")

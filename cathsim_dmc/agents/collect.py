@@ -277,6 +277,7 @@ def collect(
                 env.task.target_position_m,
                 policy=label,
                 record_observations=True,
+                safe_force_n=env.task.safe_force_n,
                 feature_fn=feature_fn,
                 clean_action_fn=clean,
             )

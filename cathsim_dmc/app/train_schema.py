@@ -56,6 +56,9 @@ class TaskConfig:
     start_rotation_rad: float = task_defaults.START_ROTATION_RAD
     start_rotation_jitter_rad: float = task_defaults.START_ROTATION_JITTER_RAD
     start_insertion_jitter_m: float = task_defaults.START_INSERTION_JITTER_M
+    # Safe success (every evaluation report's Safe Success column): the target reached without
+    # any control step's wall force (the step's mean) above this, newtons.
+    safe_force_n: float = task_defaults.SAFE_FORCE_N
 
 
 @dataclass

@@ -13,6 +13,9 @@ SUCCESS_RADIUS_M = 0.004  # the paper's delta: the tip within 4 mm of the target
 SUCCESS_REWARD = 10.0  # the reward of the step that succeeds
 DENSE_REWARD = True  # minus the distance every step (False: only the success reward)
 MAX_STEPS = 300  # the paper's episode limit, in control steps
+# Safe success (the evaluation reports' safe_success_pct): the target reached without any
+# control step's wall force (the step's mean) above this, newtons.
+SAFE_FORCE_N = 1.5
 # The start pose: the robot's rotation drawn from START_ROTATION_RAD +- START_ROTATION_JITTER_RAD
 # (pi: the tip's bend in the view's plane), its insertion from [0, START_INSERTION_JITTER_M].
 START_ROTATION_RAD = math.pi

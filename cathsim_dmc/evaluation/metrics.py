@@ -9,6 +9,10 @@ Per episode (units as in the paper's tables):
   success_pct       100 if the tip came within the success radius, else 0 (%)
   spl_pct           success weighted by optimal / max(path, optimal) (%), the optimal
                     path being the centerline length from the start to the target
+  safe_success_pct  100 if the tip came within the success radius and no step's force
+                    was above the task's `safe_force_n` (default `SAFE_SUCCESS_FORCE_N`), else 0 (%)
+
+The first six are the paper's (`METRIC_COLUMNS`); reports add safe success (`REPORT_COLUMNS`).
 
 A step's force is the total wall force averaged over its physics steps
 (`mean_contact_force_n`, see `trajectory.wall_forces_n`), not the force at the step's
@@ -25,7 +29,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from cathsim_dmc.core import task_defaults
+
 SAFE_FORCE_N = 2.0  # the paper's safety threshold
+# Safe success's threshold when a trajectory file does not record its task's (`safe_force_n`).
+SAFE_SUCCESS_FORCE_N = task_defaults.SAFE_FORCE_N
 
 METRIC_COLUMNS = {
     # key: (header, format for the mean and std)
@@ -36,6 +44,8 @@ METRIC_COLUMNS = {
     "success_pct": ("Success (%)", "{:.0f}"),
     "spl_pct": ("SPL (%)", "{:.0f}"),
 }
+# Every report's columns: the paper's, then safe success (absent from reports written before it).
+REPORT_COLUMNS = {**METRIC_COLUMNS, "safe_success_pct": ("Safe Success (%)", "{:.0f}")}
 
 
 @dataclass(frozen=True)
@@ -46,6 +56,7 @@ class EpisodeMetrics:
     safety_pct: float
     success_pct: float
     spl_pct: float
+    safe_success_pct: float | None = None  # None: a report written before it was measured
 
 
 def polyline_length_m(points) -> float:
@@ -71,7 +82,12 @@ def remaining_centerline_length_m(centerline_m, position_m) -> float:
 
 
 def episode_metrics(
-    start_tip_m, tip_positions_m, contact_forces_n, success: bool, optimal_path_m: float
+    start_tip_m,
+    tip_positions_m,
+    contact_forces_n,
+    success: bool,
+    optimal_path_m: float,
+    safe_force_n: float = SAFE_SUCCESS_FORCE_N,
 ) -> EpisodeMetrics:
     """Metrics of one episode.
 
@@ -82,6 +98,7 @@ def episode_metrics(
         mean (`mean_contact_force_n`).
       success: whether the episode reached the target.
       optimal_path_m: shortest path from the start to the target, metres.
+      safe_force_n: a success is safe if no step's force is above this, newtons.
     """
     tips = np.vstack([np.asarray(start_tip_m, dtype=float)[None], np.asarray(tip_positions_m, dtype=float)])
     forces = np.asarray(contact_forces_n, dtype=float)
@@ -96,15 +113,18 @@ def episode_metrics(
         safety_pct=100.0 * float(np.mean(forces < SAFE_FORCE_N)),
         success_pct=100.0 * float(success),
         spl_pct=100.0 * spl,
+        safe_success_pct=100.0 * float(success and bool(np.all(forces <= safe_force_n))),
     )
 
 
 def trajectory_metrics(arrays: dict) -> list:
     """Per-episode metrics from a trajectory file's arrays (see `cathsim_dmc.evaluation.trajectory`);
-    forces from `trajectory.wall_forces_n` (the step mean)."""
+    forces from `trajectory.wall_forces_n` (the step mean), safe success's threshold the
+    file's `safe_force_n` (its task's; `SAFE_SUCCESS_FORCE_N` if it has none)."""
     from cathsim_dmc.evaluation.trajectory import wall_forces_n
 
     forces = wall_forces_n(arrays)
+    safe_force_n = float(arrays["safe_force_n"]) if "safe_force_n" in arrays else SAFE_SUCCESS_FORCE_N
     episodes = []
     for e in range(len(arrays["start_tip_position_m"])):
         rows = arrays["episode"] == e
@@ -117,13 +137,15 @@ def trajectory_metrics(arrays: dict) -> list:
                 forces[rows],
                 bool(arrays["success"][rows].any()),
                 float(arrays["optimal_path_length_m"][e]),
+                safe_force_n,
             )
         )
     return episodes
 
 
 def summarize(episodes) -> dict:
-    """{metric: {"mean", "std", "n"}} over episodes (population std, as numpy's default)."""
+    """{metric: {"mean", "std", "n"}} over episodes (population std, as numpy's default),
+    for every metric of `REPORT_COLUMNS` that all episodes have."""
     if not episodes:
         raise ValueError("no episodes to summarize")
     table = [asdict(e) for e in episodes]
@@ -133,20 +155,25 @@ def summarize(episodes) -> dict:
             "std": float(np.std([row[key] for row in table])),
             "n": len(table),
         }
-        for key in METRIC_COLUMNS
+        for key in REPORT_COLUMNS
+        if all(row.get(key) is not None for row in table)
     }
 
 
 def markdown_table(rows) -> str:
     """A Markdown table from (label columns dict, summary) pairs, e.g.
-    ({"Target": "BCA", "Aorta": "type1", "Policy": "expert"}, summarize(...))."""
+    ({"Target": "BCA", "Aorta": "type1", "Policy": "expert"}, summarize(...)). The paper's
+    columns, then safe success; a summary without it (an older report) shows "-" there."""
     rows = list(rows)
     labels = list(rows[0][0]) if rows else []
-    header = labels + [h for h, _ in METRIC_COLUMNS.values()]
+    header = labels + [h for h, _ in REPORT_COLUMNS.values()]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for label, summary in rows:
         cells = [str(label[k]) for k in labels]
-        for key, (_, fmt) in METRIC_COLUMNS.items():
+        for key, (_, fmt) in REPORT_COLUMNS.items():
+            if key not in summary:
+                cells.append("-")
+                continue
             cells.append(f"{fmt.format(summary[key]['mean'])} ± {fmt.format(summary[key]['std'])}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

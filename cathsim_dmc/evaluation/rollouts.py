@@ -222,6 +222,7 @@ def evaluate_policy(
         task.target_position_m,
         policy=policy_name,
         record_observations=save_observations,
+        safe_force_n=task.safe_force_n,
     )
     frames = [] if video else None
     label = {
@@ -229,6 +230,7 @@ def evaluate_policy(
         "aorta": env.aorta_name,
         "policy": policy_name,
         "physics": task.physics_setting,
+        "safe_force_n": task.safe_force_n,
         **(label or {}),
     }
     tree_for = trees_of(env)

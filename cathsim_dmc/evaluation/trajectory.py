@@ -44,6 +44,8 @@ Optional keys (absent from files that did not record them; readers check):
                                had exploration noise added (cathsim-collect action_noise_std)
   first_episode      ()        int, global index of this file's episode 0 (a shard of a
                                cathsim-collect dataset; episode e was reset with seed + e)
+  safe_force_n       ()        float32, the task's safe-success threshold (newtons): a success
+                               is safe if no step's `mean_contact_force_n` is above it
 
 Version 2 added `optimal_path_length_m` (for SPL), `policy` and `obs_<key>`.
 """
@@ -81,6 +83,7 @@ class TrajectoryRecorder:
     target_position_m: np.ndarray
     policy: str = ""
     record_observations: bool = False
+    safe_force_n: float | None = None  # the task's (Navigate.safe_force_n); None: not recorded
     rows: dict = field(default_factory=lambda: {k: [] for k in _PER_STEP})
     observations: dict = field(default_factory=dict)
     starts: list = field(default_factory=list)
@@ -167,6 +170,8 @@ class TrajectoryRecorder:
             optimal_path_length_m=np.asarray(self.optimal_paths, dtype=np.float32),
             target_position_m=np.asarray(self.target_position_m, dtype=np.float32),
         )
+        if self.safe_force_n is not None:
+            out["safe_force_n"] = np.float32(self.safe_force_n)
         return out
 
     def save(self, path, compress: bool = True, **extra) -> Path:

@@ -27,7 +27,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.sac.policies import MultiInputPolicy
 from torch import nn
 
-IMAGE_KEYS = ("pixels", "guidewire_mask")
+IMAGE_KEYS = ("pixels", "guidewire_mask", "roadmap_overlay")
 JOINT_KEYS = ("joint_pos", "joint_vel")
 IMAGE_FEATURES = 256
 JOINT_FEATURES = 128

@@ -9,6 +9,7 @@ about the patient's vertical axis towards the patient's left (`lao_camera_axes`)
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 from dm_control import composer
 
@@ -98,34 +99,46 @@ class OperatingArena(composer.Arena):
     def side_camera(self):
         return self._side
 
-    def frame_cameras(self, bounds_m, margin: float = 1.1, lao_deg: float = 0.0):
+    def frame_cameras(self, bounds_m, margin: float = 1.1, lao_deg: float = 0.0, cranial_deg: float = 0.0):
         """Centres both cameras on an axis-aligned box [[min xyz], [max xyz]] in metres.
 
         `lao_deg` turns the top camera about world +y (the patient's long axis) by that
         angle towards the patient's left, looking at the patient from the front left: a
         left anterior oblique view (negative: right anterior oblique); 0 is the AP view.
-        The turned camera is framed on the box's corners seen along its own axes.
+        `cranial_deg` then tilts it towards the patient's head (negative: caudal). The
+        turned camera is framed on the box's corners seen along its own axes
+        (`top_camera_frame`).
         """
         lo, hi = np.asarray(bounds_m, dtype=float)
         centre = (lo + hi) / 2
         extent = hi - lo
-        # For an orthographic camera, fovy is the visible height in metres; images are square.
-        if lao_deg == 0:
-            self._top.pos = [centre[0], centre[1], hi[2] + 0.5]
-            self._top.quat = [1, 0, 0, 0]
-            self._top.fovy = float(max(extent[0], extent[1]) * margin)
-        else:
-            right, up, towards = lao_camera_axes(lao_deg)
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            across = (corners - centre) @ right
-            self._top.pos = centre + (float(np.max((corners - centre) @ towards)) + 0.5) * towards
-            self._top.quat = lao_camera_quat(lao_deg)
-            self._top.fovy = float(max(np.ptp(across), extent[1]) * margin)
+        self._top.pos, self._top.quat, self._top.fovy = top_camera_frame(bounds_m, lao_deg, cranial_deg, margin)
         self._side.pos = [hi[0] + 0.5, centre[1], centre[2]]
         self._side.fovy = float(max(extent[2], extent[1]) * margin)
         self._mjcf_root.visual.map.zfar = 5.0
         self._mjcf_root.statistic.center = centre
         self._mjcf_root.statistic.extent = float(np.max(extent))
+
+
+def top_camera_frame(bounds_m, lao_deg: float = 0.0, cranial_deg: float = 0.0, margin: float = 1.1):
+    """(position, MuJoCo quaternion, fovy) of the top camera framed on an axis-aligned box
+    [[min xyz], [max xyz]] (metres) in the C-arm view (`carm_camera_axes`): centred on it,
+    in front of all of it, and showing all of it (fovy, the visible height of an
+    orthographic camera, in metres; images are square)."""
+    lo, hi = np.asarray(bounds_m, dtype=float)
+    centre = (lo + hi) / 2
+    extent = hi - lo
+    if lao_deg == 0 and cranial_deg == 0:
+        return [centre[0], centre[1], hi[2] + 0.5], [1, 0, 0, 0], float(max(extent[0], extent[1]) * margin)
+    right, up, towards = carm_camera_axes(lao_deg, cranial_deg)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    pos = centre + (float(np.max((corners - centre) @ towards)) + 0.5) * towards
+    if cranial_deg == 0:  # the LAO view: up is the patient's long axis
+        return pos, lao_camera_quat(lao_deg), float(max(np.ptp((corners - centre) @ right), extent[1]) * margin)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.stack([right, up, towards], axis=1).ravel())
+    fovy = float(max(np.ptp(corners @ right), np.ptp(corners @ up)) * margin)
+    return pos, quat, fovy
 
 
 def lao_camera_axes(lao_deg: float):
@@ -134,6 +147,17 @@ def lao_camera_axes(lao_deg: float):
     camera sits at (sin, 0, cos) of the angle, anterior and to the patient's left."""
     a = np.radians(float(lao_deg))
     return (np.array([np.cos(a), 0.0, -np.sin(a)]), np.array([0.0, 1.0, 0.0]), np.array([np.sin(a), 0.0, np.cos(a)]))
+
+
+def carm_camera_axes(lao_deg: float, cranial_deg: float = 0.0):
+    """World directions of the C-arm view's image right, image up and view axis (towards
+    the camera): the LAO view (`lao_camera_axes`) tilted `cranial_deg` about its image
+    right towards the patient's head (+y; negative: caudal), as a C-arm's second angle
+    turns it. The image right stays in the patient's transverse plane."""
+    right, _, towards = lao_camera_axes(lao_deg)
+    b = np.radians(float(cranial_deg))
+    towards = np.cos(b) * towards + np.sin(b) * np.array([0.0, 1.0, 0.0])
+    return right, np.cross(towards, right), towards
 
 
 def lao_camera_quat(lao_deg: float) -> np.ndarray:

@@ -151,6 +151,15 @@ class WireDrawer:
         cover = reduce_area(self._canvas, self.size) * np.float32(width / thickness / 255.0)
         return np.minimum(cover, 1.0, out=cover)
 
+    def disc(self, centre_out: np.ndarray, radius_px: float) -> np.ndarray:
+        """Fraction (0..1, float32) of each output pixel covered by a filled disc of
+        `radius_px` output pixels around `centre_out` (output-pixel coordinates)."""
+        self._canvas.fill(0)
+        centre = tuple(int(c) for c in self._points(np.asarray(centre_out, dtype=float)[None])[0])
+        radius = int(round(radius_px * self.k * (1 << _SHIFT)))
+        cv2.circle(self._canvas, centre, radius, 255, -1, cv2.LINE_AA, _SHIFT)
+        return reduce_area(self._canvas, self.size) / np.float32(255.0)
+
     def mask(self, uv_out: np.ndarray, width_px: float) -> np.ndarray:
         """True where the wire, a tube `width_px` output pixels wide around the polyline,
         covers a canvas pixel centre of the output pixel: the sampling rule of a GL

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from dm_control.mujoco.wrapper.core import MjvOption
 
@@ -21,6 +22,9 @@ TOP_CAMERA = "top"
 IMAGE_SIZE = 80  # the paper's 80x80 observation
 IMAGE_STYLES = ("camera", "fluoro")
 RENDERERS = ("gl", "raster")
+# The roadmap overlay's grey levels: the lumen's silhouette and the target (`TopView.roadmap_overlay`).
+OVERLAY_LUMEN_LEVEL = 128.0
+OVERLAY_TARGET_LEVEL = 255.0
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,16 @@ class ObservationSettings:
     # step, and the roadmap's registration error, one offset per episode; metres (std).
     tracking_noise_m: float = 0.0
     registration_error_m: float = 0.0
+    # The fluoroscopic detector (`cathsim_dmc.sim.detector`; style "fluoro"): the air kerma
+    # at the detector per frame, nanograys (0: no quantum noise), and the Gaussian blur at
+    # the vessel, millimetres (std; 0: none).
+    detector_dose_ngy: float = 0.0
+    blur_mm: float = 0.0
+    # A C-arm view drawn per episode (`Navigate`): the LAO angle (negative: RAO) and the
+    # cranial angle (negative: caudal) uniform in these [low, high] ranges, degrees; None:
+    # the fixed view of `lao_deg`.
+    view_deg_range: tuple | None = None
+    cranial_deg_range: tuple | None = None
 
 
 def image_noise(std: float):
@@ -167,8 +181,9 @@ class TopView:
         self._vessel_geom_id = vessel_geom_id  # physics -> geom id of the lumen mesh
         self._cache = CameraCache()
         self._drawer = raster.WireDrawer(self.size, self.RASTER_SUPERSAMPLING)
-        self._scene = None  # per compiled model: projection, element ids, backgrounds
+        self._scene = None  # per compiled model and view: projection, element ids, backgrounds
         self._model = None
+        self._view = None
 
     def image(self, physics, style: str = "camera") -> np.ndarray:
         """Grayscale view, uint8 (size, size, 1), anti-aliased."""
@@ -209,10 +224,13 @@ class TopView:
         return self._cache.render(physics, self.camera, pixels, segmentation=True, scene_option=_MASK_OPTION)[..., 0]
 
     def _scene_for(self, physics) -> dict:
-        if self._model is not physics.model.ptr:  # a recompiled model invalidates it all
+        # A recompiled model, or the camera moved to another view (`Navigate`'s per-episode
+        # C-arm view), invalidates it all.
+        if self._model is not physics.model.ptr or self._view != self._camera_pose(physics):
             if self._wire is None or self._vessel_geom_id is None:
                 raise ValueError("the raster renderer and the fluoro style need the wire and the vessel geom")
             self._model = physics.model.ptr
+            self._view = self._camera_pose(physics)
             matrix, towards_camera = raster.camera_axes(physics, self.camera)
             wire_width_px = self._wire.diameter_m * self.size * float(np.linalg.norm(matrix[0, :3]))
             self._scene = dict(
@@ -222,8 +240,64 @@ class TopView:
                 tip=int(physics.bind(self._wire.tip_site).element_id),
                 wire_width_px=wire_width_px,
                 fluoro_gain=max(1.0, raster.FLUORO_WIRE_MIN_WIDTH_PX / wire_width_px),
+                pixel_m=1.0 / (self.size * float(np.linalg.norm(matrix[0, :3]))),
             )
         return self._scene
+
+    def _camera_pose(self, physics) -> bytes:
+        cam = physics.model.name2id(self.camera, "camera")
+        data = physics.data
+        return data.cam_xpos[cam].tobytes() + data.cam_xmat[cam].tobytes() + physics.model.cam_fovy[cam].tobytes()
+
+    def pixel_size_m(self, physics) -> float:
+        """The side of one output pixel at the vessel (the camera's field over the image size), metres."""
+        return self._scene_for(physics)["pixel_m"]
+
+    @property
+    def drawn_pixel_size_m(self) -> float:
+        """`pixel_size_m` of the view of the last image drawn."""
+        if self._scene is None:
+            raise RuntimeError("no image drawn yet")
+        return self._scene["pixel_m"]
+
+    def roadmap_overlay(self, physics, offset_m, target_m, target_radius_m: float) -> np.ndarray:
+        """The registered roadmap as a fluoroscope overlays it, uint8 (size, size, 1): the
+        lumen's silhouette (`OVERLAY_LUMEN_LEVEL` where a pixel is all inside it; the
+        pre-operative CTA's vessel tree projected through the camera) and the target, a
+        disc of `target_radius_m` (at least one pixel wide) at `OVERLAY_TARGET_LEVEL`. The
+        registration error `offset_m` (a world vector, metres) moves both, as a
+        misregistered roadmap lies beside the live image. Made once per view and offset."""
+        scene = self._scene_for(physics)
+        offset = np.asarray(offset_m, dtype=float).reshape(3)
+        key = (offset.tobytes(), np.asarray(target_m, dtype=float).tobytes(), float(target_radius_m))
+        if scene.get("overlay_key") != key:
+            k = self.RASTER_SUPERSAMPLING
+            if "silhouette" not in scene:
+                geom = int(self._vessel_geom_id(physics))
+                vertices, faces = raster.mesh_in_world(physics, geom)
+                _, crossings = raster.path_length_map(
+                    vertices, faces, scene["matrix"], scene["towards_camera"], self.size * k
+                )
+                scene["silhouette"] = raster.reduce_area((crossings > 0).astype(np.float32), self.size)
+            shift = (
+                raster.project(offset[None], scene["matrix"], self.size)[0]
+                - raster.project(np.zeros((1, 3)), scene["matrix"], self.size)[0]
+            )
+            lumen = cv2.warpAffine(
+                scene["silhouette"],
+                np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]], dtype=np.float32),
+                (self.size, self.size),
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=0.0,
+            )
+            centre = raster.project((np.asarray(target_m, dtype=float) + offset)[None], scene["matrix"], self.size)[0]
+            radius_px = max(target_radius_m / scene["pixel_m"], 0.5)
+            target = self._drawer.disc(centre, radius_px)
+            overlay = np.maximum(lumen * OVERLAY_LUMEN_LEVEL, target * OVERLAY_TARGET_LEVEL)
+            scene["overlay"] = overlay.round().clip(0, 255).astype(np.uint8)[..., None]
+            scene["overlay_key"] = key
+        return scene["overlay"].copy()
 
     def _wire_uv(self, physics, scene) -> np.ndarray:
         """The wire's centreline (segment joints, proximal to distal, then the tip) in

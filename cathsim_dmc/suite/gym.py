@@ -20,7 +20,7 @@ from gymnasium import spaces
 
 from cathsim_dmc.core.registry import env_id
 
-IMAGE_KEYS = ("pixels", "guidewire_mask")
+IMAGE_KEYS = ("pixels", "guidewire_mask", "roadmap_overlay")
 
 
 class CathSimEnv(gymnasium.Env):

@@ -303,7 +303,17 @@ def explicit_override(key: str) -> bool:
 # Options that change what an agent sees or drives. A checkpoint records them (policy.json)
 # and is evaluated, and replayed for datasets, with them whatever the command line says
 # (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
-IMAGE_OPTIONS = ("renderer", "style", "lao_deg", "tracking_noise_m", "registration_error_m")
+IMAGE_OPTIONS = (
+    "renderer",
+    "style",
+    "lao_deg",
+    "tracking_noise_m",
+    "registration_error_m",
+    "detector_dose_ngy",
+    "blur_mm",
+    "view_deg_range",
+    "cranial_deg_range",
+)
 AGENT_OPTIONS = ("extra_observations", "physics", "catheter")
 
 
@@ -336,7 +346,7 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
         dense=task.dense,
         max_steps=task.max_steps,
     )
-    for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m"):
+    for key in ("start_rotation_rad", "start_rotation_jitter_rad", "start_insertion_jitter_m", "safe_force_n"):
         # Only a changed start: a dataset's task options (compared when it is continued) stay as before.
         if task.get(key) is not None and task[key] != getattr(TaskConfig, key):
             kwargs[key] = task[key]
@@ -353,6 +363,11 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
             raise ValueError("obs.extra is now experimental.extra_observations (cathsim-train)")
         kwargs["obs"] = obs.name
         kwargs.update({key: obs[key] for key in IMAGE_OPTIONS if obs.get(key) is not None})
+        for key in ("view_deg_range", "cranial_deg_range"):
+            if key in kwargs:  # a list in policy.json, as every option a checkpoint records
+                kwargs[key] = list(
+                    OmegaConf.to_container(kwargs[key]) if OmegaConf.is_config(kwargs[key]) else kwargs[key]
+                )
         for key in ("lao_deg", "tracking_noise_m", "registration_error_m"):
             if not kwargs.get(key):  # the AP view, no noise: recorded as before the options existed
                 kwargs.pop(key, None)

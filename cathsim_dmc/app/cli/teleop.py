@@ -46,7 +46,13 @@ def teleop(cfg) -> dict | None:
     kwargs = env_kwargs(cfg)  # teleop has no obs group: the person watches the viewer
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     env = CathSimEnv(**kwargs)
-    recorder = TrajectoryRecorder(env.task.target_name, env.aorta_name, env.task.target_position_m, policy="human")
+    recorder = TrajectoryRecorder(
+        env.task.target_name,
+        env.aorta_name,
+        env.task.target_position_m,
+        policy="human",
+        safe_force_n=env.task.safe_force_n,
+    )
     session = TeleopSession(env, recorder, seed=seed)
     physics = env.physics
     period_s = env.dm_env.control_timestep() / cfg.speed
@@ -79,7 +85,12 @@ def teleop(cfg) -> dict | None:
             print("nothing recorded")
             return None
         recorder.save(out_dir / "trajectories.npz")
-        label = {"task": env.task.target_name, "aorta": env.aorta_name, "policy": "human"}
+        label = {
+            "task": env.task.target_name,
+            "aorta": env.aorta_name,
+            "policy": "human",
+            "safe_force_n": env.task.safe_force_n,
+        }
         report = write_report(recorder.arrays(), env.task.aorta.asset, label, out_dir, session.summaries, trees_of(env))
     finally:
         env.close()

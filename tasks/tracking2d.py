@@ -1,0 +1,140 @@
+"""The `tracking_2d` and `roadmap_2d` observations: the wire tracked in the fluoroscopic
+image and the registered roadmap projected into it, in millimetres in the image plane.
+
+What they assume a real system has (docs/observations.md#fluoro):
+
+* a single-plane fluoroscope (the `top` camera, in the episode's C-arm view), and an image
+  tracker that finds the wire in each frame: its tip and the points at `TRACKED_MM`
+  behind it, measured along the wire *in the image* (a single plane cannot see depth, so
+  a wire running towards the detector looks shorter), each with independent Gaussian
+  noise of `tracking_noise_m` per image axis and step;
+* the roadmap of the `roadmap` observation (the centerline from the access to the target
+  with its lumen radius, from the pre-operative CTA, registered with one offset of
+  `registration_error_m` per axis and episode), projected through the same view.
+
+Coordinates: image right (x) and image up (y, towards the patient's head in AP), in
+millimetres at the vessel, from the image centre. `tracking_2d` (2 per point, tip first)
+holds the tracked points; `roadmap_2d` holds, relative to the tracked tip, the roadmap's
+points `AHEAD_MM` past the point nearest the tip (measured along the 3-D roadmap, as
+`roadmap`'s), the target (2 each), then the lumen radius at the nearest point and at the
+target, the length left along the roadmap to the target and how far the tip lies outside
+the projected tube (negative inside), all in millimetres (1 each).
+
+The nearest point is the one where the tracked tip lies deepest inside the projected tube,
+tracked from step to step within `TRACK_BACK_M` behind and `TRACK_AHEAD_M` ahead (as the
+`roadmap` tracker does), so that it cannot jump to a stretch of vessel that crosses the
+one the tip is in, in the projection.
+
+Neither holds anything a single-plane image and the pre-operative roadmap do not give:
+no depth along the view axis, no 3-D tip, no wire angles, no forces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cathsim_dmc.anatomy.paths import CenterlinePath
+from cathsim_dmc.tasks.roadmap import AHEAD_MM, TRACK_AHEAD_M, TRACK_BACK_M
+
+TRACKED_MM = (0, 3, 6, 9, 12, 15, 20, 30)
+TRACKING_2D_SIZE = 2 * len(TRACKED_MM)
+ROADMAP_2D_SIZE = 2 * len(AHEAD_MM) + 2 + 2 + 1 + 1
+MM = 1e-3
+
+
+def image_plane(physics, camera: str = "top"):
+    """(origin, 2x3 matrix) taking a world point p (metres) to image-plane millimetres:
+    matrix @ (p - origin); x along the image right, y along the image up, from the image
+    centre (where the camera's axis meets the image)."""
+    cam = physics.model.name2id(camera, "camera")
+    axes = physics.data.cam_xmat[cam].reshape(3, 3)
+    return physics.data.cam_xpos[cam].copy(), axes[:, :2].T / MM
+
+
+def resample_back(points_2d: np.ndarray, distances: np.ndarray) -> np.ndarray:
+    """Points `distances` behind the last of the polyline `points_2d` (proximal to
+    distal), measured along it; beyond its start, the start."""
+    back = points_2d[::-1]
+    steps = np.linalg.norm(np.diff(back, axis=0), axis=1)
+    along = np.concatenate([[0.0], np.cumsum(steps)])
+    return np.stack([np.interp(distances, along, back[:, k]) for k in range(2)], axis=1)
+
+
+class ImageTracker:
+    """The image-plane tracking and roadmap of one task, over an episode: `start` at a
+    reset (after the episode's view is set), `measure` once per control step."""
+
+    def __init__(self, task, tracking_noise_m: float = 0.0):
+        points, radius = task.aorta.asset.centerlines[task.target_name]
+        self._line = CenterlinePath(points, radius)
+        self._task = task
+        self.tracking_noise_m = float(tracking_noise_m)
+        self._random_state = np.random.RandomState(0)
+        self._offset = np.zeros(3)
+        self._s = None
+        self._tracked = np.zeros(TRACKING_2D_SIZE)
+        self._roadmap = np.zeros(ROADMAP_2D_SIZE)
+
+    def start(self, random_state, registration_offset_m) -> None:
+        """A new episode with the roadmap registered `registration_offset_m` (a world
+        vector, metres) off; the nearest point is searched afresh by the next `measure`."""
+        self._random_state = random_state
+        self._offset = np.asarray(registration_offset_m, dtype=float).copy()
+        self._s = None
+
+    def tracked(self, physics=None) -> np.ndarray:
+        """The last measurement's tracked wire points (the `tracking_2d` observable)."""
+        return self._tracked.copy()
+
+    def roadmap(self, physics=None) -> np.ndarray:
+        """The last measurement's projected roadmap (the `roadmap_2d` observable)."""
+        return self._roadmap.copy()
+
+    def measure(self, physics) -> None:
+        task, line = self._task, self._line
+        origin, to_image = image_plane(physics)
+        wire = task.guidewire
+        joints = np.concatenate([physics.bind(wire.segments).xpos, [task.tip_position_m(physics)]])
+        wire_2d = (joints - origin) @ to_image.T
+        tracked = resample_back(wire_2d, np.asarray(TRACKED_MM, dtype=float))
+        if self.tracking_noise_m > 0:
+            tracked = tracked + self._random_state.normal(0.0, self.tracking_noise_m / MM, tracked.shape)
+        tip = tracked[0]
+
+        # The registered roadmap, projected: its polyline (with the extension past the
+        # target) and each point's arc length along the 3-D line.
+        road = (line.points + self._offset - origin) @ to_image.T
+        lo, hi = (-np.inf, np.inf) if self._s is None else (self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
+        s, outside_mm = _locate(road, line.arclength, line.radius / MM, tip, lo, hi)
+        self._s = s
+        end = line.length_m
+
+        def projected(s_m):
+            return (line.at(s_m) + self._offset - origin) @ to_image.T
+
+        ahead = np.array([projected(s + d * MM) for d in AHEAD_MM]) - tip
+        self._tracked = tracked.ravel()
+        self._roadmap = np.concatenate(
+            [
+                ahead.ravel(),
+                projected(end) - tip,
+                [line.radius_at(s) / MM, line.radius_at(end) / MM],
+                [(end - s) / MM],
+                [outside_mm],
+            ]
+        )
+
+
+def _locate(road_2d, arclength, radius_mm, point_2d, s_min, s_max) -> tuple[float, float]:
+    """(arc length along the 3-D line, depth outside the projected tube in mm) where the
+    image point lies deepest inside the tube, over arc lengths in [s_min, s_max]. A point
+    at parameter t along a projected segment is the projection of the point at t along the
+    3-D segment, so the arc length interpolates linearly."""
+    a, seg = road_2d[:-1], np.diff(road_2d, axis=0)
+    length2 = np.maximum((seg * seg).sum(axis=1), 1e-18)
+    t = np.clip(((point_2d - a) * seg).sum(axis=1) / length2, 0.0, 1.0)
+    s = arclength[:-1] + t * np.diff(arclength)
+    depth = np.linalg.norm(a + t[:, None] * seg - point_2d, axis=1) - np.interp(s, arclength, radius_mm)
+    depth = np.where((s >= s_min) & (s <= s_max), depth, np.inf)
+    i = int(np.argmin(depth))
+    return float(s[i]), float(depth[i])
