@@ -69,7 +69,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 import numpy as np
 
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
-from cathsim_dmc.anatomy.branches import FIND_SPACING_M, HOW, ArchError, find_arch, swap_message, swapped_site
+from cathsim_dmc.anatomy.branches import FIND_SPACING_M, ArchError, find_arch, swap_message, swapped_site
 from cathsim_dmc.anatomy.centerlines import estimate_entry_direction, lumen_centerlines
 from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around
 from cathsim_dmc.anatomy.frames import SIM_FRAME, frame_rotation, from_sim, sim_axes, to_sim, to_sim_matrix
@@ -89,7 +89,7 @@ from cathsim_dmc.anatomy.validate import (
     validate_asset,
 )
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
-from cathsim_dmc.anatomy.wall import extrude_prisms
+from cathsim_dmc.anatomy.wall import extrude_prisms, prism_offsets, thin_at_septa
 from cathsim_dmc.core.run_files import check_writable_folder
 
 MIN_SITE_DEPTH_M = 0.001
@@ -154,6 +154,20 @@ def source_frame_record(frame: str, units: str, scale: float) -> dict:
         "from_sim": json_rounded(back),
         "use": "asset point (m) = to_sim @ [x, y, z, 1] of a mesh point; from_sim maps asset points back",
     }
+
+
+def septum_note(vertices, thin, width, offsets, wall_m, frame, units) -> str:
+    """The import note on a wall thinned at a septum: where, over how much, how thin."""
+    i = int(np.argmin(np.where(thin, width, np.inf)))
+    spread = float(np.max(np.linalg.norm(vertices[thin] - vertices[i], axis=1)))
+    scale, digits = (1e-3, 1) if units == "mm" else (1.0, 4)
+    where = format_point(from_sim(vertices[i], frame), scale, digits)
+    return (
+        f"wall thinned at a septum: {int(thin.sum())} lumen vertices within {spread * 1e3:.0f} mm of {where} "
+        f"{units} meet another lumen {width[thin].min() * 1e3:.2f}-{width[thin].max() * 1e3:.2f} mm out, "
+        f"less than their {wall_m * 1e3:g} mm wall: their wall ends halfway across "
+        f"({offsets[thin].min() * 1e3:.2f}-{offsets[thin].max() * 1e3:.2f} mm thick)"
+    )
 
 
 def _vec(value, what) -> np.ndarray:
@@ -300,8 +314,6 @@ def import_mesh(
         except MeshImportError as exc:
             if repair == "surface":
                 raise
-            if auto:
-                raise MeshImportError(f"{exc}; finding the sites needs a surface the repair closes: {HOW}") from None
             reason = str(exc).split(": ", 1)[-1]
             notes.append(
                 f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume (repair=volume)"
@@ -323,12 +335,15 @@ def import_mesh(
             else:
                 v, f = v_closed, f_closed
     if auto:
-        if closed is None:
-            raise MeshImportError(f"{path}: finding the sites needs a surface the repair closes; {HOW}")
-        cv = closed[0] * scale
         try:
-            tree = find_arch(mesh_sdf_grid(cv, closed[1], FIND_SPACING_M, pad=0.004))
-        except ArchError as exc:
+            if closed is not None:
+                find_grid = mesh_sdf_grid(closed[0] * scale, closed[1], FIND_SPACING_M, pad=0.004)
+            else:  # the voxel volume's largest enclosed piece
+                find_grid, _ = volume_sdf_grid(
+                    v * scale, f, FIND_SPACING_M, 0.004, None, {}, max_gap_m=close_gap_m, shown=shown
+                )
+            tree = find_arch(find_grid)
+        except (ArchError, VolumeError) as exc:
             raise MeshImportError(f"{path}: {exc}") from None
         if entry_m is None:
             entry_m = tree.entry
@@ -521,7 +536,13 @@ def import_mesh(
             tried.append(remedy)
             notes.append(f"a fold at {where} {units_used} survived local repair: {remedy}")
             log(f"note: {notes[-1]}")
-    prisms = extrude_prisms(lumen, wall_thickness_m)
+    offsets = prism_offsets(lumen, wall_thickness_m)
+    thinned, width = thin_at_septa(lumen, offsets)
+    thin = thinned < offsets
+    if thin.any():
+        notes.append(septum_note(lumen.vertices, thin, width, thinned, wall_thickness_m, frame, units_used))
+        log(f"note: {notes[-1]}")
+    prisms = extrude_prisms(lumen, wall_thickness_m, offsets=thinned if thin.any() else None)
     wall = lumen.faces[~lumen.cap]
     cl = {k: (p, unsigned_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
     lengths = {k: polyline_length(p) for k, p in centerlines.items()}
