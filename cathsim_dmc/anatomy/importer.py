@@ -42,14 +42,24 @@ go on:
    around the entry axis is subtracted) and capped flat; the cap is the open end
    where the wire comes in and gets no wall. A fold that local repair leaves gets
    the remedies in order: remeshing (a kept surface), shorter edges, the surface
-   path's volume rebuild (`repair="auto"`), the volume smoothed around the fold
-   (twice, coarser), and, when the fold lies beyond what the paths need, a tighter
-   crop that cuts it away. When none works, the import stops with one final message;
+   path's volume rebuild (`repair="auto"`), a septum or ridge crest thinner than 1 mm
+   (or 3 grid nodes) near the fold thickened to that (`crop.thicken_septa`: the septum
+   between close ostia, the carina of two branches, which the mesher pinches or folds),
+   the volume smoothed around the fold (twice, coarser), and, when the fold lies beyond
+   what the paths need, a tighter crop that cuts it away. A surface that touches itself
+   (two sheets meshed onto one point) counts as a fold. When none works, the import
+   stops with one final message;
 9. **wall**: one prism per lumen triangle extruded outward (as generated
-   arches);
+   arches), except where the vertex normal meets another lumen within the wall's
+   thickness (a septum thinner than the wall): there the prism ends halfway across
+   (`wall.thin_at_septa`), and a note says where and how thin;
 10. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
    CLI passes `cathsim_dmc.sim.model_check.validate_and_compile`, which adds the
    MuJoCo compile) and only then move the folder into place.
+
+The import answers within `import_clock.IMPORT_BUDGET_S` (270 s; each meshing attempt
+`REMEDY_BUDGET_S`, 100 s): a step that spends its budget stops it with one line naming the
+step (`time_budget_s`, `remedy_budget_s`).
 
 This module runs the pipeline; the steps live in `mesh_repair` (1-3), `mesh_grid` (4),
 `centerlines` (5-6), `crop` (7 and the fold remedies), `open_end` (8) and `volume`
@@ -172,7 +182,7 @@ def septum_note(vertices, thin, width, offsets, wall_m, frame, units) -> str:
     return (
         f"wall thinned at a septum: {int(thin.sum())} lumen vertices within {spread * 1e3:.0f} mm of {where} "
         f"{units} meet another lumen {width[thin].min() * 1e3:.2f}-{width[thin].max() * 1e3:.2f} mm out, "
-        f"less than their {wall_m * 1e3:g} mm wall: their wall ends halfway across "
+        f"within their wall ({wall_m * 1e3:g} mm, longer where the surface curves): it ends halfway across "
         f"({offsets[thin].min() * 1e3:.2f}-{offsets[thin].max() * 1e3:.2f} mm thick)"
     )
 
