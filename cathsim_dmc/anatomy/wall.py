@@ -67,13 +67,13 @@ def septum_widths(lumen: Lumen, reach: np.ndarray) -> np.ndarray:
     used = np.unique(f)
     tri = v[f]
     centre = tri.mean(axis=1)
-    size = float(np.max(np.linalg.norm(tri - centre[:, None], axis=2)))
+    size = np.max(np.linalg.norm(tri - centre[:, None], axis=2), axis=1)
     fn = face_normals(v, f)
-    tree = spatial.cKDTree(centre)
-    lists = tree.query_ball_point(v[used], reach[used] + size)
+    # The wall vertices within reach of each triangle (a radius per triangle: its size).
+    lists = spatial.cKDTree(v[used]).query_ball_point(centre, float(reach[used].max()) + size)
     counts = np.array([len(c) for c in lists], dtype=np.int64)
-    vi = np.repeat(used, counts)
-    ti = np.fromiter((j for c in lists for j in c), dtype=np.int64, count=int(counts.sum()))
+    ti = np.repeat(np.arange(len(f)), counts)
+    vi = used[np.fromiter((j for c in lists for j in c), dtype=np.int64, count=int(counts.sum()))]
     # Only triangles facing the ray (met from outside) and not touching the vertex itself.
     keep = (np.einsum("ij,ij->i", n[vi], fn[ti]) < 0) & ~np.any(f[ti] == vi[:, None], axis=1)
     vi, ti = vi[keep], ti[keep]
