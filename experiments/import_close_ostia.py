@@ -48,7 +48,11 @@ def main(argv=None) -> int:
                 text=True,
             )
             wall, cpu = time.perf_counter() - t0, _child_cpu_s() - cpu0
-            remedies = [m.group(1) for m in re.finditer(r"survived local repair: ([^\n]*)", proc.stdout)]
+            remedies = [
+                line.split("survived local repair: ", 1)[1]
+                for line in proc.stdout.splitlines()
+                if line.startswith("note: a fold at ")
+            ]
             septum = re.search(r"meet another lumen ([\d.]+)-", proc.stdout)
             answer = "OK" if proc.returncode == 0 else proc.stderr.strip().splitlines()[-1]
             off = ""

@@ -57,7 +57,7 @@ go on:
    CLI passes `cathsim_dmc.sim.model_check.validate_and_compile`, which adds the
    MuJoCo compile) and only then move the folder into place.
 
-The import answers within `import_clock.IMPORT_BUDGET_S` (270 s; each meshing attempt
+The import answers within `import_clock.IMPORT_BUDGET_S` (240 s; each meshing attempt
 `REMEDY_BUDGET_S`, 100 s): a step that spends its budget stops it with one line naming the
 step (`time_budget_s`, `remedy_budget_s`).
 
