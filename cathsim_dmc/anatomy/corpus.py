@@ -29,14 +29,14 @@ refuses or mishandles:
   thrown about 2 mm in random directions, so that their triangles cross others.
 
 The **close ostia** class (`CLOSE_OSTIA_VARIANTS`) is made from generated arches whose BCA
-and LCCA leave the arch close together (`CLOSE_OSTIA_PARAMS`: a short, wide arch with a
+and LCCA leave the arch close together (`CLOSE_OSTIA_PARAMS`: a narrow, 52 mm arch with a
 36 mm ascending aorta, a 2 mm junction blend), so that the tissue between the two lumens
 (the septum) is thinner than the simulator's 2 mm wall:
 
 - ``close_ostia``: the BCA and LCCA ostia 1 mm apart wall to wall (11.4 mm centre to
   centre), leaning 10 degrees towards each other: a septum of about 1 mm between them;
 - ``shared_trunk``: a bovine arch, the BCA and LCCA from a 6 mm common trunk, parting
-  slowly (headings -20 and +10 degrees): a thin septum above the trunk's carina.
+  slowly (headings -20 and +10 degrees): a septum down to about 2 mm above the trunk's carina.
 
 Each is the isosurface of a 0.5 mm voxel mask, decimated (manifold3d's edge collapse
 within 0.1 mm, then 0.2 mm) to about 7k triangles, with 4 non-manifold edges (a third
