@@ -28,6 +28,22 @@ refuses or mishandles:
 - ``self_intersecting``: the noisy surface with 20 vertices of the BCA's ostium rim
   thrown about 2 mm in random directions, so that their triangles cross others.
 
+The **close ostia** class (`CLOSE_OSTIA_VARIANTS`) is made from generated arches whose BCA
+and LCCA leave the arch close together (`CLOSE_OSTIA_PARAMS`: a narrow, 52 mm arch with a
+36 mm ascending aorta, a 2 mm junction blend), so that the tissue between the two lumens
+(the septum) is thinner than the simulator's 2 mm wall:
+
+- ``close_ostia``: the BCA and LCCA ostia 1 mm apart wall to wall (11.4 mm centre to
+  centre), leaning 10 degrees towards each other: a septum of about 1 mm between them;
+- ``shared_trunk``: a bovine arch, the BCA and LCCA from a 6 mm common trunk, parting
+  slowly (headings -20 and +10 degrees): a septum down to about 2 mm above the trunk's carina.
+
+Each is the isosurface of a 0.5 mm voxel mask, decimated (manifold3d's edge collapse
+within 0.1 mm, then 0.2 mm) to about 7k triangles, with 4 non-manifold edges (a third
+triangle hung on each) and 3 small closed shells (1.5 mm spheres: one inside the
+descending aorta's lumen, two beside the arch), as a decimated segmentation export keeps
+specks and voxels touching at an edge.
+
 Every variant is written in millimetres (as segmentation tools export) with the
 arch's entry and target sites, in millimetres too.
 """
@@ -58,6 +74,23 @@ VARIANTS = (
     "self_intersecting",
 )
 VOXEL_M = 0.001  # about 260k triangles; 0.0009 gives about 320k
+CLOSE_OSTIA_VARIANTS = ("close_ostia", "shared_trunk")
+_CLOSE_BASE = dict(ascending_diameter_m=0.036, arch_width_m=0.052, blend_radius_m=0.002)
+CLOSE_OSTIA_PARAMS = {
+    "close_ostia": PRESETS["type1"].replace(
+        name="close_ostia", bca_lcca_gap_m=0.001, bca_takeoff_deg=10.0, lcca_takeoff_deg=-10.0, **_CLOSE_BASE
+    ),
+    "shared_trunk": PRESETS["bovine"].replace(
+        name="shared_trunk",
+        bovine_trunk_length_m=0.006,
+        bca_angle_deg=-20.0,
+        lcca_angle_deg=10.0,
+        branch_bend_length_m=0.020,
+        **_CLOSE_BASE,
+    ),
+}
+CLOSE_VOXEL_M = 0.0005  # a 1 mm mask would lose a 1 mm septum
+CLOSE_DECIMATION_MM = (0.1, 0.2)  # manifold3d simplify tolerances, in turn
 
 
 @functools.lru_cache(maxsize=1)
@@ -225,9 +258,13 @@ def cap_files(path) -> list:
 
 
 def make_variant(name: str, folder, voxel_m: float = VOXEL_M) -> "tuple[pathlib.Path, np.ndarray, dict]":
-    """Write variant `name` to `folder`, from a voxel mask of `voxel_m`: (mesh path, entry in mm, sites in mm)."""
+    """Write variant `name` to `folder`, from a voxel mask of `voxel_m`: (mesh path, entry in mm, sites in mm).
+
+    The close-ostia variants (`CLOSE_OSTIA_VARIANTS`) are made at `CLOSE_VOXEL_M` whatever `voxel_m`."""
+    if name in CLOSE_OSTIA_VARIANTS:
+        return _close_ostia_variant(name, folder)
     if name not in VARIANTS:
-        raise ValueError(f"variant {name!r} is not one of {VARIANTS}")
+        raise ValueError(f"variant {name!r} is not one of {VARIANTS + CLOSE_OSTIA_VARIANTS}")
     model, grid = _arch()
     rng = np.random.default_rng(VARIANTS.index(name))
     values, origin = _resampled(grid, voxel_m)
@@ -282,10 +319,56 @@ def make_variant(name: str, folder, voxel_m: float = VOXEL_M) -> "tuple[pathlib.
     return _write(folder, name, v, f, caps, model)
 
 
-def _write(folder, name, v, f, caps, model):
+def _decimate(v, f, tolerances_mm):
+    """manifold3d's edge collapse of the closed surface v, f (m), within each tolerance (mm) in turn."""
+    import manifold3d
+
+    man = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v * 1e3, tri_verts=f.astype(np.uint64)))
+    for tol in tolerances_mm:
+        man = man.simplify(tol)
+    mesh = man.to_mesh64()
+    return np.array(mesh.vert_properties)[:, :3] * 1e-3, np.array(mesh.tri_verts, dtype=np.int64)
+
+
+def _speck(centre, radius=0.0015):
+    """A small closed shell (an icosphere) at `centre`: (vertices, faces)."""
+    s = trimesh.creation.icosphere(subdivisions=1, radius=radius)
+    return np.asarray(s.vertices) + centre, np.asarray(s.faces, dtype=np.int64)
+
+
+def _close_ostia_variant(name, folder):
+    model = build_arch(CLOSE_OSTIA_PARAMS[name])
+    grid = arch_sdf_grid(model)
+    rng = np.random.default_rng(len(VARIANTS) + CLOSE_OSTIA_VARIANTS.index(name))
+    values, origin = _resampled(grid, CLOSE_VOXEL_M)
+    v, f = _mask_surface(values < 0, origin, CLOSE_VOXEL_M)
+    v, f = _decimate(v, f, CLOSE_DECIMATION_MM)
+    # Fins: a third triangle on 4 edges, to a vertex just off the surface (non-manifold edges).
+    edges = trimesh.Trimesh(v, f, process=False).edges_unique
+    pick = rng.choice(len(edges), 4, replace=False)
+    tips = v[edges[pick, 0]] + rng.normal(0.0, 0.0003, (4, 3))
+    f = np.concatenate([f, np.column_stack([edges[pick], len(v) + np.arange(4)])])
+    v = np.concatenate([v, tips])
+    # Specks: one inside the descending aorta (7 mm off its axis, 40 mm above the entry), two
+    # 4 mm outside the wall of the arch (beside the ascending aorta and the descending one).
+    a = model.aorta
+    i = int(np.searchsorted(a.arclength, a.arclength[0] + 0.05))
+    aside = np.array([0.0, 0.0, 1.0])
+    centres = [a.points[i] + 0.007 * aside]
+    for s_from_end in (a.arclength[-1] - 0.010, a.arclength[0] + 0.08):
+        j = int(np.searchsorted(a.arclength, s_from_end))
+        centres.append(a.points[j] + (a.radius[j] + 0.004) * aside)
+    for c in centres:
+        sv, sf = _speck(c)
+        f = np.concatenate([f, sf + len(v)])
+        v = np.concatenate([v, sv])
+    return _write(folder, name, v, f, [], model, stem=name)
+
+
+def _write(folder, name, v, f, caps, model, stem=None):
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"type1_{name}.stl"
+    path = folder / f"{stem or f'type1_{name}'}.stl"
     for old in cap_files(path):
         old.unlink()
     trimesh.Trimesh(v * 1e3, f, process=False).export(path)

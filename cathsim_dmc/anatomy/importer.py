@@ -42,14 +42,24 @@ go on:
    around the entry axis is subtracted) and capped flat; the cap is the open end
    where the wire comes in and gets no wall. A fold that local repair leaves gets
    the remedies in order: remeshing (a kept surface), shorter edges, the surface
-   path's volume rebuild (`repair="auto"`), the volume smoothed around the fold
-   (twice, coarser), and, when the fold lies beyond what the paths need, a tighter
-   crop that cuts it away. When none works, the import stops with one final message;
+   path's volume rebuild (`repair="auto"`), a septum or ridge crest thinner than 1 mm
+   (or 3 grid nodes) near the fold thickened to that (`crop.thicken_septa`: the septum
+   between close ostia, the carina of two branches, which the mesher pinches or folds),
+   the volume smoothed around the fold (twice, coarser), and, when the fold lies beyond
+   what the paths need, a tighter crop that cuts it away. A surface that touches itself
+   (two sheets meshed onto one point) counts as a fold. When none works, the import
+   stops with one final message;
 9. **wall**: one prism per lumen triangle extruded outward (as generated
-   arches);
+   arches), except where the vertex normal meets another lumen within the wall's
+   thickness (a septum thinner than the wall): there the prism ends halfway across
+   (`wall.thin_at_septa`), and a note says where and how thin;
 10. **validate** (`validator`: `cathsim_dmc.anatomy.validate.validate_asset`; the
    CLI passes `cathsim_dmc.sim.model_check.validate_and_compile`, which adds the
    MuJoCo compile) and only then move the folder into place.
+
+The import answers within `import_clock.IMPORT_BUDGET_S` (240 s; each meshing attempt
+`REMEDY_BUDGET_S`, 100 s): a step that spends its budget stops it with one line naming the
+step (`time_budget_s`, `remedy_budget_s`).
 
 This module runs the pipeline; the steps live in `mesh_repair` (1-3), `mesh_grid` (4),
 `centerlines` (5-6), `crop` (7 and the fold remedies), `open_end` (8) and `volume`
@@ -69,10 +79,11 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 import numpy as np
 
 from cathsim_dmc.anatomy.asset import json_rounded, write_asset
-from cathsim_dmc.anatomy.branches import FIND_SPACING_M, HOW, ArchError, find_arch, swap_message, swapped_site
+from cathsim_dmc.anatomy.branches import FIND_SPACING_M, ArchError, find_arch, swap_message, swapped_site
 from cathsim_dmc.anatomy.centerlines import estimate_entry_direction, lumen_centerlines
-from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around
+from cathsim_dmc.anatomy.crop import crop_to_paths, distance_to_paths_m, smooth_around, thicken_septa
 from cathsim_dmc.anatomy.frames import SIM_FRAME, frame_rotation, from_sim, sim_axes, to_sim, to_sim_matrix
+from cathsim_dmc.anatomy.import_clock import IMPORT_BUDGET_S, REMEDY_BUDGET_S, ImportClock, import_budget
 from cathsim_dmc.anatomy.import_error import MeshImportError, format_point
 from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.lumen import FoldedSurfaceError
@@ -89,7 +100,7 @@ from cathsim_dmc.anatomy.validate import (
     validate_asset,
 )
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
-from cathsim_dmc.anatomy.wall import extrude_prisms
+from cathsim_dmc.anatomy.wall import extrude_prisms, prism_offsets, thin_at_septa
 from cathsim_dmc.core.run_files import check_writable_folder
 
 MIN_SITE_DEPTH_M = 0.001
@@ -104,6 +115,12 @@ DEFAULT_CROP_MARGIN_M = 0.02  # kept around the paths and past each site, throug
 # The fold remedies, in order, after a remesh at shorter edges: the volume smoothed around the
 # fold over these sigmas (m, at least these many grid nodes) within these radii (m).
 FOLD_SMOOTHING = ((0.001, 2, 0.012), (0.002, 4, 0.016))
+# A fold or pinch with a septum or ridge crest thinner than FOLD_SEPTUM_M within FOLD_SEPTUM_RADIUS_M
+# (the septum between close ostia, the carina of two branches) gets that septum thickened to
+# FOLD_SEPTUM_M, or FOLD_SEPTUM_NODES grid nodes, before the smoothing (which would thin it more).
+FOLD_SEPTUM_M = 0.001
+FOLD_SEPTUM_NODES = 3
+FOLD_SEPTUM_RADIUS_M = 0.006
 FOLD_CROP_CLEARANCE_M = 0.004  # a fold this far beyond a tighter crop's margin is cut away
 MAX_EXTENT_M = 1.5  # larger than any aorta (an arch spans 0.1-0.6 m): a unit slip
 
@@ -156,6 +173,20 @@ def source_frame_record(frame: str, units: str, scale: float) -> dict:
     }
 
 
+def septum_note(vertices, thin, width, offsets, wall_m, frame, units) -> str:
+    """The import note on a wall thinned at a septum: where, over how much, how thin."""
+    i = int(np.argmin(np.where(thin, width, np.inf)))
+    spread = float(np.max(np.linalg.norm(vertices[thin] - vertices[i], axis=1)))
+    scale, digits = (1e-3, 1) if units == "mm" else (1.0, 4)
+    where = format_point(from_sim(vertices[i], frame), scale, digits)
+    return (
+        f"wall thinned at a septum: {int(thin.sum())} lumen vertices within {spread * 1e3:.0f} mm of {where} "
+        f"{units} meet another lumen {width[thin].min() * 1e3:.2f}-{width[thin].max() * 1e3:.2f} mm out, "
+        f"within their wall ({wall_m * 1e3:g} mm, longer where the surface curves): it ends halfway across "
+        f"({offsets[thin].min() * 1e3:.2f}-{offsets[thin].max() * 1e3:.2f} mm thick)"
+    )
+
+
 def _vec(value, what) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
@@ -192,10 +223,26 @@ def import_mesh(
     crop_margin_m: float = DEFAULT_CROP_MARGIN_M,
     caps: Sequence = (),
     log: Callable[[str], None] = print,
+    time_budget_s: float = IMPORT_BUDGET_S,
+    remedy_budget_s: float = REMEDY_BUDGET_S,
     _started: Optional[float] = None,
+    _clock: Optional[ImportClock] = None,
 ) -> ImportReport:
-    """Turn a lumen surface file into an asset folder at `out` (see the module docstring)."""
-    t0 = time.perf_counter() if _started is None else _started
+    """Turn a lumen surface file into an asset folder at `out` (see the module docstring).
+
+    It answers within `import_clock.IMPORT_BUDGET_S`: a step that spends its budget stops the
+    import with one line naming it (`MeshImportError`)."""
+    if _clock is None:
+        args = dict(locals())
+        if not all(np.isfinite(b) and b > 0 for b in (time_budget_s, remedy_budget_s)):
+            raise ValueError(
+                f"time_budget_s={time_budget_s!r} and remedy_budget_s={remedy_budget_s!r} must be seconds (> 0)"
+            )
+        clock = ImportClock(pathlib.Path(mesh_path), budget_s=time_budget_s, started=_started)
+        with import_budget(clock):
+            return import_mesh(**{**args, "_clock": clock})
+    clock = _clock
+    t0 = clock.t0
     path = pathlib.Path(mesh_path)
     out = pathlib.Path(out)
     name = name or path.stem
@@ -261,6 +308,7 @@ def import_mesh(
                     f"{need * 1e3:.2f} mm inside)"
                 )
 
+    clock.begin("repairing the surface")
     use_volume = repair == "volume"
     repairs: List[str] = []
     closed = None  # the repaired closed surface (mesh units), for finding the sites
@@ -300,8 +348,6 @@ def import_mesh(
         except MeshImportError as exc:
             if repair == "surface":
                 raise
-            if auto:
-                raise MeshImportError(f"{exc}; finding the sites needs a surface the repair closes: {HOW}") from None
             reason = str(exc).split(": ", 1)[-1]
             notes.append(
                 f"the surface repair cannot fix it ({reason}); rebuilding it from a voxel volume (repair=volume)"
@@ -323,12 +369,16 @@ def import_mesh(
             else:
                 v, f = v_closed, f_closed
     if auto:
-        if closed is None:
-            raise MeshImportError(f"{path}: finding the sites needs a surface the repair closes; {HOW}")
-        cv = closed[0] * scale
+        clock.begin("finding the entry and the sites")
         try:
-            tree = find_arch(mesh_sdf_grid(cv, closed[1], FIND_SPACING_M, pad=0.004))
-        except ArchError as exc:
+            if closed is not None:
+                find_grid = mesh_sdf_grid(closed[0] * scale, closed[1], FIND_SPACING_M, pad=0.004)
+            else:  # the voxel volume's largest enclosed piece
+                find_grid, _ = volume_sdf_grid(
+                    v * scale, f, FIND_SPACING_M, 0.004, None, {}, max_gap_m=close_gap_m, shown=shown
+                )
+            tree = find_arch(find_grid)
+        except (ArchError, VolumeError) as exc:
             raise MeshImportError(f"{path}: {exc}") from None
         if entry_m is None:
             entry_m = tree.entry
@@ -363,6 +413,7 @@ def import_mesh(
         )
         pad = 3 * edge + 2 * h
         check_grid_memory(v, f, h, pad, path)
+        clock.begin(f"the voxel volume on a {h * 1e3:.2f} mm grid")
         smooth = h if smooth_m is None else float(smooth_m)
         try:
             grid, vnotes = volume_sdf_grid(
@@ -378,6 +429,7 @@ def import_mesh(
         check_depths(depth)
         if not edge_length_m:
             edge = min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
+        clock.begin(f"the centerlines on the {h * 1e3:.2f} mm grid")
         centerlines = lumen_centerlines(grid, None, None, entry_m, sites_m, depth=lambda q: -grid(q))
         grid, tnotes = trim_side_branches(grid, list(centerlines.values()), entry_m, trim_branches_m)
         for n_ in tnotes:
@@ -396,6 +448,7 @@ def import_mesh(
         edge = float(edge_length_m) if edge_length_m else min(DEFAULT_EDGE_M, 0.75 * 2 * float(depth[1:].min()))
         h = float(sdf_spacing_m) if sdf_spacing_m else float(np.clip(0.25 * float(depth.min()), 0.0004, 0.001))
         check_grid_memory(v, f, h, 3 * edge + 2 * h, path)
+        clock.begin(f"the distance grid at {h * 1e3:.2f} mm")
         grid = mesh_sdf_grid(v, f, h, pad=3 * edge + 2 * h)
         check_given_sites(grid)
         centerlines = lumen_centerlines(grid, v, f, entry_m, sites_m)
@@ -451,7 +504,11 @@ def import_mesh(
     tried: List[str] = []
     smoothing = list(FOLD_SMOOTHING)
     shortened = False
+    thickened = False
     while True:
+        meshing = f"remeshed at {edge * 1e3:.2f} mm edges" if do_remesh else "as given"
+        after = f", after: {tried[-1]}" if tried else ""
+        clock.begin(f"meshing the lumen ({meshing} on the {grid.spacing * 1e3:.2f} mm grid{after})", remedy_budget_s)
         try:
             lumen, open_end = build_open_lumen(
                 v, f, grid, entry_m, direction, remesh=do_remesh, edge_length=edge, depth=open_end_depth_m, path=path
@@ -462,6 +519,7 @@ def import_mesh(
                 from_sim(exc.where, frame), 1e-3 if units_used == "mm" else 1.0, 1 if units_used == "mm" else 4
             )
             away = distance_to_paths_m(list(centerlines.values()), exc.where)
+            width = max(FOLD_SEPTUM_NODES * grid.spacing, FOLD_SEPTUM_M)
             remedy = None
             if not do_remesh:
                 do_remesh, remedy = True, "remeshed the surface"
@@ -499,7 +557,16 @@ def import_mesh(
                     crop_margin_m=crop_margin_m,
                     caps=caps,
                     log=log,
-                    _started=t0,
+                    time_budget_s=time_budget_s,
+                    remedy_budget_s=remedy_budget_s,
+                    _clock=clock,
+                )
+            elif not thickened and (thick := thicken_septa(grid, exc.where, FOLD_SEPTUM_RADIUS_M, width))[1] < np.inf:
+                thickened = True
+                grid, thinnest = thick
+                remedy = (
+                    f"a septum or ridge crest down to {thinnest * 1e3:.2f} mm thick within "
+                    f"{FOLD_SEPTUM_RADIUS_M * 1e3:.0f} mm of it thickened to {width * 1e3:.2f} mm"
                 )
             elif smoothing:
                 sigma, nodes, radius = smoothing.pop(0)
@@ -521,7 +588,14 @@ def import_mesh(
             tried.append(remedy)
             notes.append(f"a fold at {where} {units_used} survived local repair: {remedy}")
             log(f"note: {notes[-1]}")
-    prisms = extrude_prisms(lumen, wall_thickness_m)
+    clock.begin("the wall")
+    offsets = prism_offsets(lumen, wall_thickness_m)
+    thinned, width = thin_at_septa(lumen, offsets)
+    thin = thinned < offsets
+    if thin.any():
+        notes.append(septum_note(lumen.vertices, thin, width, thinned, wall_thickness_m, frame, units_used))
+        log(f"note: {notes[-1]}")
+    prisms = extrude_prisms(lumen, wall_thickness_m, offsets=thinned if thin.any() else None)
     wall = lumen.faces[~lumen.cap]
     cl = {k: (p, unsigned_distance(lumen.vertices, wall, p)) for k, p in centerlines.items()}
     lengths = {k: polyline_length(p) for k, p in centerlines.items()}
@@ -575,6 +649,7 @@ def import_mesh(
                 **({} if frame == SIM_FRAME else {"source_frame": source_frame_record(frame, units_used, scale)}),
             },
         )
+        clock.begin(f"validating the {len(prisms)} wall pieces")
         report = validator(tmp) if validate else None
         if report is not None and not report.ok:
             raise MeshImportError(

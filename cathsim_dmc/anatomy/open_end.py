@@ -120,6 +120,12 @@ def build_open_lumen(
     loc[np.abs(loc[:, 1]) < 1e-12, 1] = 0.0
     loc, ff = close_cap(loc, ff, 0.0)
     vv2, ff2 = canonical_order(to_world(loc), ff)
+    _, first, count = np.unique(vv2.astype(np.float32), axis=0, return_index=True, return_counts=True)
+    if np.any(count > 1):  # two sheets meshed onto one point: a septum thinner than the mesher resolves
+        where = vv2[first[np.argmax(count)]]
+        raise FoldedSurfaceError(
+            f"Lumen surface touches itself at [{', '.join(f'{x * 1e3:.1f}' for x in where)}] mm.", where=where
+        )
     loc2 = to_local(vv2)
     cap2 = np.all(
         (np.abs(loc2[ff2][:, :, 1]) < 1e-9) & (np.hypot(loc2[ff2][:, :, 0], loc2[ff2][:, :, 2]) < r_cut + 3 * edge),

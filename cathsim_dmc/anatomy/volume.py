@@ -13,7 +13,8 @@ lumen, side-branch stumps. None of that matters to a volume:
    are capped first, since they are wider than any closing should be;
 2. **keep the lumen**: the connected piece of the inside that holds the entry (and
    must hold the sites). Anything else is dropped: loose pieces, and for a wall
-   shell (an inner and an outer surface) the wall between them;
+   shell (an inner and an outer surface) the wall between them; pockets enclosed
+   by the lumen (closed shells inside it) are filled;
 3. **signed distance**: to the nearest surface sample near the shell, a distance
    transform further away, the sign from the classification; optionally
    Gaussian-smoothed (`smooth_m`);
@@ -99,6 +100,7 @@ def volume_sdf_grid(
     """Signed distance grid (positive outside) of the lumen around `entry`, and notes on what was done.
 
     `v` (metres) and `f` need not form a closed or manifold surface; see the module docstring.
+    `entry` None keeps the largest enclosed piece (to find the entry and the sites on).
     Raises VolumeError (one line) when the entry is not enclosed, the sites lie in another
     piece, or the grid would exceed `max_nodes`. Its messages show a point `p` as `shown(p)` (the
     importer's map back into the mesh's frame).
@@ -120,7 +122,7 @@ def volume_sdf_grid(
     # crosses, so the shell seals the outside from the inside (6-connected flood fill).
     shell[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     seeds = {
-        "entry": np.asarray(entry, dtype=np.float64),
+        **({} if entry is None else {"entry": np.asarray(entry, dtype=np.float64)}),
         **{f"sites.{k}": np.asarray(p, dtype=np.float64) for k, p in sites.items()},
     }
     seed_idx = {k: tuple(np.clip(np.rint((p - lo) / h).astype(int), 0, n - 1)) for k, p in seeds.items()}
@@ -163,7 +165,14 @@ def volume_sdf_grid(
     inside = ~shell & ~outside
     del labels, outside
     pieces, count = ndimage.label(inside)
-    lumen_label = pieces[seed_idx["entry"]]
+    if entry is None:  # the largest piece (the vessel, for finding the entry and the sites)
+        if count == 0:
+            raise VolumeError(f"the surface encloses no volume at sdf_mm={h * 1e3:.2f} (open, or thinner than a node?)")
+        sizes = np.bincount(pieces.ravel())
+        sizes[0] = 0
+        lumen_label = int(np.argmax(sizes))
+    else:
+        lumen_label = pieces[seed_idx["entry"]]
     apart = [k for k, ix in seed_idx.items() if pieces[ix] != lumen_label]
     if apart:
         raise VolumeError(
@@ -186,6 +195,16 @@ def volume_sdf_grid(
         lumen |= grow_in & ~grow_out
         rest |= grow_out
         unknown &= ~(grow_in | grow_out)
+    # Closed shells inside the lumen (specks a segmentation left unlabelled) are lumen.
+    filled = ndimage.binary_fill_holes(lumen)
+    pockets, n_pockets = ndimage.label(filled & ~lumen)
+    if n_pockets:
+        notes.append(
+            f"filled {n_pockets} enclosed pocket{'s' * (n_pockets > 1)} inside the lumen "
+            f"({float(np.count_nonzero(pockets)) * (h * 1e3) ** 3:.0f} mm^3)"
+        )
+        lumen = filled
+    del filled, pockets
     # Signed distance: to the triangles next to the lumen's boundary, a distance transform elsewhere
     # (outside too: projections onto the surface follow its gradient).
     d_in = ndimage.distance_transform_edt(lumen)

@@ -39,9 +39,12 @@ import: `mesh=FILE` (STL/OBJ lumen surface), `entry=[x,y,z]` and one or more
   `crop=auto` (default) keeps the lumen within `crop_mm=20` (through the lumen) of
   the entry-to-site paths, past each site too, and caps the rest; `crop=none` keeps
   everything. `caps=[FILE,...]`: cap surfaces of an open (CFD) wall, in its units.
-  A surface that folds is remeshed with shorter edges, then smoothed around the
-  fold, then cut away there if no path needs it; the import fails with one final
-  line when none of these works.
+  A surface that folds is remeshed with shorter edges, then a thin septum or ridge crest
+  next to the fold is thickened, then the volume smoothed around the fold, then cut away
+  there if no path needs it; the import fails with one final line when none of these
+  works. Where the septum between two lumens is thinner than the wall, the wall there
+  ends halfway across it (a note says where). Every import answers within 240 s: a step
+  that spends its budget stops it with one line naming the step.
 
 Exit status 0 on success, 2 with one `error:` line on bad input (including a
 mesh that cannot be imported), 1 when `validate` finds problems.
