@@ -32,3 +32,25 @@ def load_script(path):
     sys.modules[spec.name] = module  # dataclasses look their module up while it executes
     spec.loader.exec_module(module)
     return module
+
+
+def expert_successes(aorta, target: str, episodes: int = 5) -> int:
+    """Episodes (seeds 0, 1, ...) in which the scripted expert reaches `target` in the asset
+    folder `aorta`, with the wire alone."""
+    from cathsim_dmc.control.expert import CenterlineExpert
+    from cathsim_dmc.suite.gym import CathSimEnv
+
+    env = CathSimEnv(task=target, aorta=str(aorta), obs="internal")
+    reached = 0
+    try:
+        for seed in range(episodes):
+            observation, info = env.reset(seed=seed)
+            expert = CenterlineExpert()
+            for _ in range(env.task.max_steps):
+                observation, _, terminated, truncated, info = env.step(expert(observation, env))
+                if terminated or truncated:
+                    break
+            reached += bool(info["success"])
+    finally:
+        env.close()
+    return reached

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 import trimesh
+from conftest import expert_successes
 
 from cathsim_dmc.anatomy import load_asset
 from cathsim_dmc.anatomy.corpus import VARIANTS, cap_files, make_variant
@@ -18,8 +19,6 @@ from cathsim_dmc.anatomy.isosurface import zero_surface
 from cathsim_dmc.anatomy.sdf import SDFGrid
 from cathsim_dmc.anatomy.surface_cleanup import folded_faces, repair_folds
 from cathsim_dmc.anatomy.volume import VolumeError, trim_side_branches, volume_sdf_grid
-from cathsim_dmc.control.expert import CenterlineExpert
-from cathsim_dmc.suite.gym import CathSimEnv
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 R = 0.010  # sphere radius (m)
@@ -190,19 +189,7 @@ def _check_import(tmp_path, name):
         depth = signed_distance(*lumen, points)  # positive inside
         assert np.all(depth > MIN_DEPTH_SHARE.get(name, 0.8) * radius), (k, float(np.min(depth / radius)))
     for target in ("bca", "lcca"):
-        env = CathSimEnv(task=target, aorta=str(tmp_path / name), obs="internal")
-        reached = 0
-        try:
-            for seed in range(5):
-                observation, info = env.reset(seed=seed)
-                expert = CenterlineExpert()
-                for _ in range(env.task.max_steps):
-                    observation, _, terminated, truncated, info = env.step(expert(observation, env))
-                    if terminated or truncated:
-                        break
-                reached += bool(info["success"])
-        finally:
-            env.close()
+        reached = expert_successes(tmp_path / name, target, episodes=5)
         assert reached >= 4, f"the expert reached the {target} in {reached} of 5 episodes"
     return out
 
