@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cathsim_dmc.core.checks import check_number
+from cathsim_dmc.core.registry import IMAGE_OPTIONS
 from cathsim_dmc.core.shipped import conf_root
 from cathsim_dmc.sim.render import IMAGE_STYLES, MAX_RENDER_PX, RENDERERS, ObservationSettings, TopView
 
@@ -27,18 +28,7 @@ PRESET_OBSERVABLES = (
     "carm_view",
 )
 # Options a preset file may set (besides name and observables).
-PRESET_OPTIONS = (
-    "renderer",
-    "style",
-    "image_size",
-    "lao_deg",
-    "tracking_noise_m",
-    "registration_error_m",
-    "detector_dose_ngy",
-    "blur_mm",
-    "view_deg_range",
-    "cranial_deg_range",
-)
+PRESET_OPTIONS = ("image_size", *IMAGE_OPTIONS)
 MAX_VIEW_DEG = 45.0  # the largest LAO/RAO and cranial/caudal angle a per-episode view may draw
 
 

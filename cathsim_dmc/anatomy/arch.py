@@ -223,8 +223,7 @@ def build_arch(params: ArchParams) -> ArchModel:
 
         def ostium(t, b):
             direction, stretch = arch.takeoff_direction(t, roll_of(b), takeoff_of(b))
-            reach = r_of_theta(t) if stretch == 1.0 else r_of_theta(t) * stretch
-            return arch.point(t) + reach * direction
+            return arch.point(t) + r_of_theta(t) * stretch * direction
 
         drop = lambda t: top_y - ostium(t, "bca")[1] - p.bca_origin_drop_m
         if drop(math.pi * 0.98) < 0:
@@ -307,7 +306,7 @@ def build_arch(params: ArchParams) -> ArchModel:
         A, R_a = aorta_at(s_br[b])
         takeoff = takeoff_of(b)
         n0, stretch = arch.takeoff_direction(theta[b], roll_of(b), takeoff)
-        u_wall = R_a if takeoff == 0.0 else R_a * stretch
+        u_wall = R_a * stretch
         ang = math.radians(p.branch_angle_deg(b))
         d1 = np.array([math.sin(ang), math.cos(ang), 0.0])
         total = u_wall + p.branch_length_m(b)

@@ -139,20 +139,26 @@ def distance_to_paths_m(paths: Sequence[np.ndarray], point) -> float:
     return float(np.min(np.linalg.norm(pts - np.asarray(point, dtype=np.float64), axis=1)))
 
 
+def _box_around(grid: SDFGrid, where, reach_m: float):
+    """(the slices of the grid's nodes within `reach_m` of `where`, per axis, and each such
+    node's distance from `where`, m)."""
+    h = grid.spacing
+    centre = np.array(_node(grid, where))
+    r = int(np.ceil(reach_m / h))
+    lo = np.maximum(centre - r, 0)
+    hi = np.minimum(centre + r + 1, np.array(grid.values.shape))
+    axes = [grid.origin[k] + h * np.arange(lo[k], hi[k]) for k in range(3)]
+    x = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+    return tuple(slice(a, b) for a, b in zip(lo, hi)), np.linalg.norm(x - np.asarray(where, dtype=np.float64), axis=-1)
+
+
 def smooth_around(grid: SDFGrid, where, radius_m: float, sigma_m: float) -> SDFGrid:
     """The grid Gaussian-smoothed (`sigma_m`) within `radius_m` of `where`, blended smoothly into the
     rest over the outer third: a coarser volume where a surface would not mesh, the same elsewhere."""
     h = grid.spacing
-    centre = np.array(_node(grid, where))
-    r = int(np.ceil((radius_m + 3 * sigma_m) / h))
-    lo = np.maximum(centre - r, 0)
-    hi = np.minimum(centre + r + 1, np.array(grid.values.shape))
-    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    box, d = _box_around(grid, where, radius_m + 3 * sigma_m)
     values = grid.values.copy()
     smoothed = ndimage.gaussian_filter(values[box], sigma_m / h, mode="nearest")
-    axes = [grid.origin[k] + h * np.arange(lo[k], hi[k]) for k in range(3)]
-    x = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
-    d = np.linalg.norm(x - np.asarray(where, dtype=np.float64), axis=-1)
     weight = np.clip((radius_m - d) / (radius_m / 3), 0.0, 1.0)
     values[box] = weight * smoothed + (1 - weight) * values[box]
     return SDFGrid(origin=grid.origin, spacing=h, values=values)
@@ -178,15 +184,9 @@ def thicken_septa(grid: SDFGrid, where, radius_m: float, width_m: float) -> "tup
     or than its edges) folds or pinches the surface; a thicker one meshes. Elsewhere the grid
     is unchanged."""
     h = grid.spacing
-    centre = np.array(_node(grid, where))
-    r = int(np.ceil((radius_m + 2 * width_m) / h))
-    lo = np.maximum(centre - r, 0)
-    hi = np.minimum(centre + r + 1, np.array(grid.values.shape))
-    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    box, d = _box_around(grid, where, radius_m + 2 * width_m)
     sub = grid.values[box]
-    axes = [grid.origin[k] + h * np.arange(lo[k], hi[k]) for k in range(3)]
-    x = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
-    near = np.linalg.norm(x - np.asarray(where, dtype=np.float64), axis=-1) <= radius_m
+    near = d <= radius_m
     thin = thin_outside(sub, h, width_m) & near
     # The medial nodes: a thin node no neighbour of which lies deeper in the outside.
     ridge = thin & (sub >= ndimage.maximum_filter(sub, size=3) - 0.5 * h)

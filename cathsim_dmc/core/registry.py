@@ -53,3 +53,18 @@ def register_all() -> None:
             gymnasium.register(
                 id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "aorta": aorta, "registered_id": name}
             )
+
+
+# Observation-preset options that change what an agent sees (a preset file may set them, plus
+# `image_size`; a checkpoint records them): one list for tasks/presets.py and the tools.
+IMAGE_OPTIONS = (
+    "renderer",
+    "style",
+    "lao_deg",
+    "tracking_noise_m",
+    "registration_error_m",
+    "detector_dose_ngy",
+    "blur_mm",
+    "view_deg_range",
+    "cranial_deg_range",
+)

@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from cathsim_dmc.core.registry import IMAGE_OPTIONS
+
 USAGE_ERROR = 2
 INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process Ctrl-C stopped
 ASSET_FOLDER_OPTION = "folder"  # conf/aorta/folder.yaml: an asset folder given as aorta=DIR
@@ -303,17 +305,6 @@ def explicit_override(key: str) -> bool:
 # Options that change what an agent sees or drives. A checkpoint records them (policy.json)
 # and is evaluated, and replayed for datasets, with them whatever the command line says
 # (cathsim-eval lets an explicit task.physics= win: a transfer test between settings).
-IMAGE_OPTIONS = (
-    "renderer",
-    "style",
-    "lao_deg",
-    "tracking_noise_m",
-    "registration_error_m",
-    "detector_dose_ngy",
-    "blur_mm",
-    "view_deg_range",
-    "cranial_deg_range",
-)
 AGENT_OPTIONS = ("extra_observations", "physics", "catheter")
 
 
