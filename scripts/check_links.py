@@ -84,9 +84,9 @@ def anchors(path: pathlib.Path) -> set:
     return result
 
 
-def broken_links(path: pathlib.Path) -> List[str]:
-    """One message per broken relative link or image in `path`."""
-    problems = []
+def relative_links(path: pathlib.Path) -> Iterator[Tuple[int, str, pathlib.Path, str]]:
+    """(line number, target as written, resolved file, anchor) of each relative link or
+    image in `path`."""
     for first, paragraph in _paragraphs(path.read_text(encoding="utf-8")):
         for match in LINK.finditer(paragraph):
             target = match.group(1)
@@ -94,13 +94,32 @@ def broken_links(path: pathlib.Path) -> List[str]:
                 continue
             file_part, _, anchor = target.partition("#")
             number = first + paragraph.count("\n", 0, match.start())
-            where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{number}"
             destination = (path.parent / file_part).resolve() if file_part else path
-            if not destination.exists():
-                problems.append(f"{where}: {target}: no such file")
-                continue
-            if anchor and destination.suffix == ".md" and anchor not in anchors(destination):
-                problems.append(f"{where}: {target}: no heading #{anchor} in {destination.name}")
+            yield number, target, destination, anchor
+
+
+def reachable(start: pathlib.Path) -> set:
+    """The Markdown files and images reachable from `start` by relative links, `start` included."""
+    seen, todo = {start.resolve()}, [start.resolve()]
+    while todo:
+        page = todo.pop()
+        for _, _, destination, _ in relative_links(page):
+            if destination not in seen and destination.is_file():
+                seen.add(destination)
+                if destination.suffix == ".md":
+                    todo.append(destination)
+    return seen
+
+
+def broken_links(path: pathlib.Path) -> List[str]:
+    """One message per broken relative link or image in `path`."""
+    problems = []
+    for number, target, destination, anchor in relative_links(path):
+        where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{number}"
+        if not destination.exists():
+            problems.append(f"{where}: {target}: no such file")
+        elif anchor and destination.suffix == ".md" and anchor not in anchors(destination):
+            problems.append(f"{where}: {target}: no heading #{anchor} in {destination.name}")
     return problems
 
 

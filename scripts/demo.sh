@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The main job on a built-in default: train a navigator for the BCA in the type I arch
+# The main job on a built-in default: train a specialist for the BCA in the type I arch
 # from scratch (SAC with 100 scripted-expert demonstrations mixed into every batch; the
 # defaults of conf/train.yaml: 8k steps, about 13 minutes on 2 CPU cores),
 # then report its evaluation over 20 deterministic episodes. Extra arguments are Hydra
