@@ -213,6 +213,11 @@ def recipe_obs() -> str:
     raise ValueError("conf/experiment/navigator.yaml sets no observation preset")
 
 
+def recipe_catheter() -> str | None:
+    """The catheter the navigator recipe trains with (conf/experiment/navigator.yaml), or None."""
+    return (_recipe().get("task") or {}).get("catheter")
+
+
 # What each navigator preset observes, for the model card.
 PRESET_CARD = {
     "roadmap": "the registered roadmap around the tracked tip, in the tip's frame, and the robot's encoders",
@@ -297,6 +302,9 @@ def evaluation_jobs(
                 # A trained agent brings its own observations (named where their noise is set); the
                 # expert's do not change what it does.
                 *([f"obs={policy.obs_preset}"] if anatomy == NOISY_NAME else [] if checkpoint else ["obs=roadmap"]),
+                # The scripted expert drives the catheter the navigators are trained with; a
+                # checkpoint brings its own (policy.json's env_options).
+                *([f"task.catheter={recipe_catheter()}"] if policy_name == "expert" and recipe_catheter() else []),
             ]
             groups.setdefault((tuple(fixed), tuple(point)), []).append(point)
     return [(list(fixed), block) for (fixed, _), points in groups.items() for block in sweeps.blocks(points)]
@@ -408,9 +416,9 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
         lines += [
             f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
             "",
-            "| policy | seeds | success % | SPL % | force N | episode length | type I | type II | type III "
-            "| separate ostia | close ostia | bovine | success % with noise |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| policy | seeds | success % | safe success % | SPL % | force N | episode length | type I | type II "
+            "| type III | separate ostia | close ostia | bovine | success % with noise |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
@@ -431,6 +439,8 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
                     by_type.append(_cell(rates))
             lines.append(
                 f"| {label} | {len(reports)} | {_cell([mean(m, 'success_pct') for m in reports])} | "
+                # reports from before safe success have no such column: "-"
+                f"{_cell([mean(m, 'safe_success_pct') for m in reports if 'safe_success_pct' in m['summary']])} | "
                 f"{_cell([mean(m, 'spl_pct') for m in reports])} | "
                 f"{_cell([mean(m, 'force_n') for m in reports], '{:.2f}')} | "
                 f"{_cell([mean(m, 'episode_length') for m in reports])} | "
@@ -555,6 +565,19 @@ def ship(root: Path, task: str) -> Path:
         f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1 else "the only seed trained so far"
     )
     what = f"{PRESET_CARD[obs]}; " if obs in PRESET_CARD else ""
+    catheter = config.task.get("catheter")
+    actions = (
+        f"[insertion, rotation, catheter carriage] in [-1, 1], with the `{catheter}` catheter over the wire."
+        if catheter
+        else "[insertion, rotation] in [-1, 1]; the wire alone, no catheter."
+    )
+    bovine = (
+        "- Bovine arches: 15% of the distribution it was trained on; it drives the catheter as the expert\n"
+        "  it learned from does (docs/benchmarks.md#with-a-catheter).\n"
+        if catheter
+        else "- Bovine arches: trained on none; the reverse-angle LCCA of a bovine trunk needs a catheter,\n"
+        "  which this policy does not drive.\n"
+    )
     preset = textwrap.fill(
         f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained without noise.",
         width=96,
@@ -569,7 +592,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
     python -c "from cathsim_dmc.agents.trained import load_pretrained; policy = load_pretrained('{task}')"
 
 {preset}
-- **Actions**: [insertion, rotation] in [-1, 1]; the wire alone, no catheter.
+- **Actions**: {actions}
 - **Training**: `{command}` at commit {commit}, on a 2-core x86_64 CPU without a GPU;
   `best.zip` of the run{stopped}: step {best["step"]}, {100 * best["success_rate"]:.0f}% of its periodic
   evaluation on 20 training arches; {chosen_by}.
@@ -592,8 +615,7 @@ Episode i seeded 10,000 + i; `python scripts/generalisation.py evaluate --task {
 - It needs the roadmap: a centerline from the access to the target with its lumen radius, and the
   tip tracked in 3-D. It was trained without tracking or registration noise; the table gives its
   score with both.
-{wide_branch}- Bovine arches: trained on none; the reverse-angle LCCA of a bovine trunk needs a catheter,
-  which this policy does not drive.
+{wide_branch}{bovine}
 - It was trained and scored in this simulator only (its wire, wall contact and anatomy
   generator); nothing here is validated on a phantom or a patient.
 """

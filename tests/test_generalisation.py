@@ -10,11 +10,13 @@ import sys
 from conftest import load_script
 
 
-def _write(folder, successes, aortas, force=0.2, length=100):
+def _write(folder, successes, aortas, force=0.2, length=100, safe=None):
+    """A cathsim-eval report; `safe` (safe successes) left out: one from before safe success."""
     folder.mkdir(parents=True)
     rate = 100.0 * sum(successes) / len(successes)
     summary = {
         "success_pct": {"mean": rate},
+        **({"safe_success_pct": {"mean": 100.0 * sum(safe) / len(safe)}} if safe is not None else {}),
         "spl_pct": {"mean": rate / 2},
         "force_n": {"mean": force},
         "episode_length": {"mean": length},
@@ -28,9 +30,9 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_v
     aortas = ["a", "b", "c", "d"]
     types = {"a": "I", "b": "II", "c": "III", "d": "III"}
     scores = tmp_path / "scores" / "bca"
-    _write(scores / "navigator_seed0_best" / "heldout", [True, True, True, False], aortas)
-    _write(scores / "navigator_seed1_best" / "heldout", [True, True, False, False], aortas)
-    _write(scores / "navigator_seed2_best" / "heldout", [True, True, True, True], aortas)
+    _write(scores / "navigator_seed0_best" / "heldout", [True, True, True, False], aortas, safe=[1, 0, 0, 0])
+    _write(scores / "navigator_seed1_best" / "heldout", [True, True, False, False], aortas, safe=[1, 1, 0, 0])
+    _write(scores / "navigator_seed2_best" / "heldout", [True, True, True, True], aortas, safe=[1, 1, 1, 1])
     _write(scores / "navigator_seed0_last" / "heldout", [False, False, False, False], aortas)
     _write(scores / "navigator_seed0_best" / "heldout_noise", [True, False, True, False], aortas)
     _write(scores / "expert" / "heldout", [True, True, True, True], aortas)
@@ -42,11 +44,13 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_v
     best = rows["navigator, best.zip"].split(" | ")
     assert best[1] == "3"  # seeds
     assert best[2] == "75 (75, 50, 100)"  # median success, then each seed's
+    assert best[3] == "50 (25, 50, 100)"  # safe success
     all_reached, half = "100 (100, 100, 100)", "50 (50, 0, 100)"
-    assert best[6:9] == [all_reached, all_reached, half]  # by arch type
-    assert best[9:12] == [all_reached, all_reached, half]  # by variant
-    assert best[12] == "50 |"  # with noise: seed 0
+    assert best[7:10] == [all_reached, all_reached, half]  # by arch type
+    assert best[10:13] == [all_reached, all_reached, half]  # by variant
+    assert best[13] == "50 |"  # with noise: seed 0
     assert rows["navigator, last.zip"].split(" | ")[2] == "0"
+    assert rows["expert"].split(" | ")[3] == "-"  # a report from before safe success
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there
     # (the expert's 1 of 2 on type II), and a dash where nothing was scored.
     lines = [line for line in shipped_table.splitlines() if line.startswith("| ")]
@@ -123,6 +127,8 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                 assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
                 # a trained agent brings its own observations, named where their noise is set
                 assert ("obs" in job) == (job["policy"] == "expert" or noisy)
+                # the expert drives the catheter the navigator recipe trains with
+                assert cfg.task.catheter == ("angled_5f" if job["policy"] == "expert" else None)
     # The expert has no roadmap to be noisy; the shipped navigator has.
     expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise")}
     expected |= {("pretrained", a) for a in anatomies}
