@@ -573,10 +573,10 @@ def ship(root: Path, task: str) -> Path:
     )
     bovine = (
         "- Bovine arches: 15% of the distribution it was trained on; it drives the catheter as the expert\n"
-        "  it learned from does (docs/benchmarks.md#with-a-catheter).\n"
+        "  it learned from does (docs/benchmarks.md#with-a-catheter)."
         if catheter
         else "- Bovine arches: trained on none; the reverse-angle LCCA of a bovine trunk needs a catheter,\n"
-        "  which this policy does not drive.\n"
+        "  which this policy does not drive."
     )
     preset = textwrap.fill(
         f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained without noise.",
