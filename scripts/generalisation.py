@@ -276,6 +276,7 @@ def evaluation_jobs(
     from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 
     anatomies = anatomy_overrides(root, episodes, shipped_episodes, only_anatomies)
+    catheter = recipe_catheter()  # read once: the recipe's YAML
     groups: dict = {}
     for policy_name, source in policies(root, task, unfinished).items():
         if only and policy_name not in only:
@@ -304,7 +305,7 @@ def evaluation_jobs(
                 *([f"obs={policy.obs_preset}"] if anatomy == NOISY_NAME else [] if checkpoint else ["obs=roadmap"]),
                 # The scripted expert drives the catheter the navigators are trained with; a
                 # checkpoint brings its own (policy.json's env_options).
-                *([f"task.catheter={recipe_catheter()}"] if policy_name == "expert" and recipe_catheter() else []),
+                *([f"task.catheter={catheter}"] if policy_name == "expert" and catheter else []),
             ]
             groups.setdefault((tuple(fixed), tuple(point)), []).append(point)
     return [(list(fixed), block) for (fixed, _), points in groups.items() for block in sweeps.blocks(points)]
