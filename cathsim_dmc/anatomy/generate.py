@@ -272,9 +272,10 @@ def branch_clearance_m(model) -> float:
     return out
 
 
-def _clipped_normal(rng, mean, sd, clip_sd, lo=-math.inf, hi=math.inf):
+def _clipped_normal(rng, mean, sd, clip_sd, lo=-math.inf):
+    """A normal draw clipped to clip_sd standard deviations, and to at least `lo`."""
     value = float(np.clip(rng.normal(mean, sd), mean - clip_sd * sd, mean + clip_sd * sd))
-    return float(np.clip(value, lo, hi))
+    return max(value, lo)
 
 
 def _morphometry_sizes(rng, params: ArchParams, m: Morphometry = MORPHOMETRY) -> dict:
