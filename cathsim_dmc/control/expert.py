@@ -22,19 +22,18 @@ interventionalist does with an angled wire:
   steps; then retreat out of the branch and enter again.
 
 With a catheter over the wire (`Navigate(catheter=...)`; actions then have a third entry,
-the catheter's carriage) the expert leaves it parked at the sheath unless the path turns
-back on itself before the target (more than `catheter_turn_deg`, 80 degrees, between where
-the path runs 30-45 mm before the target and its last 15 mm: a branch that leaves its parent
-at a reverse angle, as the LCCA does from a bovine trunk), where a wire alone cannot be
-pushed up the branch (its shaft lies along the parent and takes the push), or the target
-lies in a wide branch (a radius of at least 4.5 mm there: the BCA) after a turn of more than
-`catheter_wide_turn_deg`, 50 degrees, where the wire's tip comes to rest on the wall short
-of the target. There it does what an interventionalist does with a shaped catheter:
+the catheter's carriage) the wire goes first, alone, past the other ostia (a stiff curved
+tip would hook the first of them), the catheter parked at the sheath. The catheter comes up
+where the wire alone cannot finish: when the wire's tip, within `catheter_bring_up_m` of the
+target, has not come `min_progress_m` closer for `catheter_stall_steps` control steps (a
+branch that leaves its parent at a reverse angle, as the LCCA does from a bovine trunk: the
+wire's shaft lies along the parent and takes the push), or when the end game's strokes end
+without reaching the target (a wide branch: the wire's tip rests on the wall). Then it does
+what an interventionalist does with a shaped catheter:
 
-* **lead with the catheter**: the wire goes first, past the other ostia (a stiff curved
-  tip would hook the first of them), and within `catheter_bring_up_m` of the target the
-  catheter's tip comes up to the wire's; then it steers the pair (the catheter's curve,
-  over the wire's soft tip, is the bend the aim turns) with the catheter following the wire;
+* **lead with the catheter**: the catheter's tip comes up to the wire's (the wire held);
+  then it steers the pair (the catheter's curve, over the wire's soft tip, is the bend the
+  aim turns) with the catheter following the wire;
 * **hold it and advance the wire**: once the tip is within `catheter_hold_m` of the target
   and points at it (within `catheter_aim_rad`), hold the catheter and push the wire out
   of it at half speed without turning: the catheter's curve, backed by its stiffness,
@@ -108,12 +107,8 @@ class CenterlineExpert:
         # from that branch (this share of the aim) while the tip passes its ostium.
         self.avoid_gain = 1.0
         # With a catheter (see the module docstring).
-        self.catheter_turn_deg = 80.0
-        # A wide branch (radius at the target at least this) takes the catheter from a
-        # smaller turn: there the wire's tip comes to rest on the wall short of the target.
-        self.catheter_wide_radius_m = 0.0045
-        self.catheter_wide_turn_deg = 50.0
         self.catheter_bring_up_m = 0.030
+        self.catheter_stall_steps = 60  # the wire this long near the target, no closer: the catheter comes up
         self.catheter_lost_steps = 3  # the pair this long out of the path's lumen: the wire leads again
         self.catheter_stand_back_m = 0.040
         self.catheter_hold_m = 0.014
@@ -144,21 +139,12 @@ class CenterlineExpert:
         self._max_insertion_step = task.robot.max_insertion_speed_m_s * task.control_timestep
         self._schedule = self._stroke_schedule()
         self._has_catheter = getattr(task, "catheter", None) is not None
-        wide = self._target_radius >= self.catheter_wide_radius_m
-        turn_limit = self.catheter_wide_turn_deg if wide else self.catheter_turn_deg
-        self.uses_catheter = self._has_catheter and self.path_turn_deg(line) > turn_limit
+        self.uses_catheter = False  # until the wire alone stalls (module docstring)
         self._catheter_phase = "wire"
         self._held_distance_m = None
         self._lost_steps = 0
-
-    @staticmethod
-    def path_turn_deg(line: CenterlinePath) -> float:
-        """Angle in degrees between where the path runs 30-45 mm before its end and its last 15 mm."""
-        end = line.length_m
-        before = line.at(end - 0.030) - line.at(max(0.0, end - 0.045))
-        last = line.at(end) - line.at(end - 0.015)
-        cosine = np.dot(before, last) / (np.linalg.norm(before) * np.linalg.norm(last))
-        return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+        self._closest_m = np.inf  # the wire tip's closest approach to the target
+        self._steps_no_closer = 0  # control steps within catheter_bring_up_m since then
 
     def __call__(self, observation, env) -> np.ndarray:
         action = self._wire_action(env)
@@ -226,6 +212,14 @@ class CenterlineExpert:
             self._best_s, self._since_progress, self._backoffs = s, 0, 0
         else:
             self._since_progress += 1
+        if self._has_catheter and not self.uses_catheter:
+            distance = task.target_distance_m(physics)
+            if distance < self._closest_m - self.min_progress_m:
+                self._closest_m, self._steps_no_closer = distance, 0
+            elif distance < self.catheter_bring_up_m:
+                self._steps_no_closer += 1
+            if self._steps_no_closer >= self.catheter_stall_steps:
+                self.uses_catheter = True  # the wire alone stalls short of the target
         lost = outside > self.lost_margin_m
         self._lost_steps = self._lost_steps + 1 if lost else 0
         if lost:
@@ -319,6 +313,8 @@ class CenterlineExpert:
         if phase >= len(schedule):
             self._retreat_to = self._line.length_m - self.retreat_radii * self._target_radius
             self._at_depth = 0
+            if self._has_catheter:
+                self.uses_catheter = True  # the strokes did not reach the target: bring up the catheter
             return np.array([-1.0, rotation], dtype=np.float32)
         past = schedule[phase]
         insertion = float(np.clip((remaining + past) / self._max_insertion_step, -1.0, 1.0))
