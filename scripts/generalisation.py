@@ -574,20 +574,20 @@ def ship(root: Path, task: str) -> Path:
     )
     from cathsim_dmc.anatomy.generate import MORPHOMETRY
 
-    # The arches of aorta=random's fixed_branches distribution are never bovine.
-    distribution = config.aorta.get("params", {}).get("distribution", "morphometry")
+    # A run from before aorta=random had a `distribution` drew the fixed_branches arches, never bovine.
+    distribution = config.aorta.get("params", {}).get("distribution", "fixed_branches")
     bovine_share = MORPHOMETRY.bovine_fraction if distribution == "morphometry" else 0.0
-    if bovine_share and catheter:
-        bovine = (
-            f"- Bovine arches: drawn with probability {bovine_share:.0%} in the distribution it was trained on;\n"
-            "  it drives the catheter as the expert it learned from does (docs/benchmarks.md#with-a-catheter)."
-        )
-    elif bovine_share:
-        bovine = f"- Bovine arches: drawn with probability {bovine_share:.0%} in the distribution it was trained on."
-    else:
+    if not bovine_share:
         bovine = (
             "- Bovine arches: trained on none; the reverse-angle LCCA of a bovine trunk needs a catheter,\n"
             "  which this policy does not drive."
+        )
+    else:
+        bovine = f"- Bovine arches: drawn with probability {bovine_share:.0%} in the distribution it was trained on"
+        bovine += (
+            ";\n  it drives the catheter as the expert it learned from does (docs/benchmarks.md#with-a-catheter)."
+            if catheter
+            else "."
         )
     preset = textwrap.fill(
         f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained without noise.",
