@@ -78,7 +78,12 @@ TUNING_NAME = "tuning"
 NOISE = dict(tracking_noise_m=0.001, registration_error_m=0.002)
 NOISY_NAME = "heldout_noise"
 CORPUS = ("noisy", "decimated", "pinched", "stump", "wall_shell")
-ANATOMIES = (*SHIPPED, *[f"corpus_{c}" for c in CORPUS])  # the table beside the held-out pool
+# The close-ostia corpus meshes, each written in the simulator's frame and in the two patient
+# frames with a scanner's origin far from the anatomy, imported with defaults (sites found).
+CLOSE_OSTIA_FRAMES = ("sim", "LPS", "RAS")
+SCANNER_ORIGIN_LPS_MM = (-123.4, 56.7, -890.1)
+CLOSE_OSTIA = tuple(f"{n}_{f}" for n in ("close_ostia", "shared_trunk") for f in CLOSE_OSTIA_FRAMES)
+ANATOMIES = (*SHIPPED, *[f"corpus_{c}" for c in (*CORPUS, *CLOSE_OSTIA)])  # the table beside the held-out pool
 EVAL_SEED = 10_000
 TARGETS = ("bca", "lcca")
 
@@ -165,7 +170,36 @@ def import_corpus(root: Path) -> dict:
                 ]
             )
         assets[f"corpus_{name}"] = out
+    for name in CLOSE_OSTIA:
+        out = root / "corpus" / name
+        if not (out / "meta.json").is_file():
+            variant, frame = name.rsplit("_", 1)
+            mesh = _close_ostia_mesh(root / "corpus" / "meshes", variant, frame)
+            _run([_tool("aorta"), "import", f"mesh={mesh}", "units=mm", f"frame={frame}", f"out={out}"])
+        assets[f"corpus_{name}"] = out
     return assets
+
+
+def _close_ostia_mesh(work: Path, variant: str, frame: str) -> Path:
+    """The close-ostia corpus mesh `variant` (millimetres) written in `frame`; the patient
+    frames are moved to a scanner's origin, as a CT segmentation comes."""
+    import numpy as np
+    import trimesh
+
+    from cathsim_dmc.anatomy.corpus import make_variant
+    from cathsim_dmc.anatomy.frames import from_sim, to_sim
+
+    work.mkdir(parents=True, exist_ok=True)
+    path = work / f"{variant}.stl"
+    if not path.is_file():
+        path = make_variant(variant, work)[0]
+    if frame == "sim":
+        return path
+    origin = from_sim(to_sim(np.array(SCANNER_ORIGIN_LPS_MM), "LPS"), frame)
+    mesh = trimesh.load(path, process=False)
+    out = work / f"{variant}_{frame}.stl"
+    trimesh.Trimesh(from_sim(np.asarray(mesh.vertices), frame) + origin, mesh.faces, process=False).export(out)
+    return out
 
 
 def policies(root: Path, task: str, unfinished: bool = False) -> dict:
