@@ -7,6 +7,7 @@
         hydra.launcher.partition=<partition>                          # on a SLURM cluster
     python scripts/generalisation.py report
     python scripts/generalisation.py ship --task bca                  # the seed best on the tuning pool
+    python scripts/generalisation.py curves --out docs/navigator_curves.png
 
 `train` runs `cathsim-train -m +experiment=navigator task=<tasks> seed=<seeds>`, each run in
 ROOT/runs/<task>/seed<seed>; `--specialist` runs the default recipe on type I into
@@ -21,7 +22,8 @@ one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,.
   "morphometry" distribution, each visited once), the same pool with the roadmap's
   tracking and registration noise (navigators only), the nine shipped aortas and the
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
-  `cathsim-aorta import` and default options.
+  `cathsim-aorta import` and default options, the close-ostia meshes in the sim, LPS and
+  RAS frames with their sites found.
 
 Each (policy, anatomy) gets a cathsim-eval report in ROOT/scores/<task>/<policy>/<anatomy>/
 (metrics.json). A finished one is skipped, so a run cut short resumes where it stopped.
@@ -35,7 +37,8 @@ each; `hydra.launcher.<key>=<value>` among the arguments passes on to it.
 `report` reads the scores into the tables of docs/training.md#unseen-anatomy: success, SPL,
 force and episode length on the held-out pool (the navigators' median over seeds with each
 seed's score), success by arch type and by branching variant, and success on each shipped
-aorta and corpus mesh.
+aorta and corpus mesh. `curves` draws each target's periodic evaluations on the training
+pool (evaluations.jsonl) against steps: the median over seeds and the seeds' spread.
 """
 
 from __future__ import annotations
@@ -670,6 +673,25 @@ Episode i seeded 10,000 + i; `python scripts/generalisation.py evaluate --task {
     return weights
 
 
+def curves(root: Path, out: Path) -> Path:
+    """The navigators' learning curves: success of the periodic evaluations (20 training
+    arches each) against online steps, per target, over the seeds under ROOT/runs."""
+    from cathsim_dmc.evaluation.plots import learning_curves_plot
+
+    panels = {}
+    for task in TARGETS:
+        seeds = [
+            [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+            for run in sorted((root / "runs" / task).glob("seed*"))
+            if (run / "evaluations.jsonl").is_file()
+        ]
+        if seeds:
+            panels[task.upper()] = {"navigator": seeds}
+    if not panels:
+        raise UsageError(f"no navigator run with evaluations.jsonl under {root / 'runs'}")
+    return learning_curves_plot(panels, out, ylabel="success on 20 training arches")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("outputs/generalisation"))
@@ -695,6 +717,8 @@ def main(argv=None) -> int:
     rep.add_argument("--out", type=Path, default=None)
     shp = sub.add_parser("ship", help="export the seed best on the tuning pool as policy=pretrained")
     shp.add_argument("--task", choices=TARGETS, default="bca")
+    crv = sub.add_parser("curves", help="the navigators' learning curves (median and spread over seeds)")
+    crv.add_argument("--out", type=Path, default=Path("navigator_curves.png"))
     args = parser.parse_args(argv)
     try:
         if args.command in ("train", "evaluate"):
@@ -711,6 +735,9 @@ def main(argv=None) -> int:
         if args.command == "train":
             tool = [o for o in args.overrides if not o.startswith("hydra.launcher.")]
             return train(args.root, args.task, args.seed, args.specialist, tool, launcher)
+        if args.command == "curves":
+            print(f"wrote {curves(args.root, args.out)}")
+            return 0
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

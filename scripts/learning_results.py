@@ -179,36 +179,15 @@ def _fmt_int(value):
 
 
 def _plot(curves: dict, path: Path) -> None:
-    import matplotlib
+    """Success against steps per task, each variant's median over seeds with the seeds' spread."""
+    from cathsim_dmc.evaluation.plots import learning_curves_plot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    tasks = sorted({task for _, task in curves})
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4.2 * len(tasks), 3.2), squeeze=False)
-    colours = dict(zip(VARIANTS, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
-    for ax, task in zip(axes[0], tasks):
-        for (variant, t), seeds in curves.items():
-            if t != task:
-                continue
-            for i, (seed, evals) in enumerate(sorted(seeds.items())):
-                ax.plot(
-                    [e["step"] for e in evals],
-                    [e["success_rate"] for e in evals],
-                    color=colours[variant],
-                    alpha=0.8,
-                    lw=1.2,
-                    label=variant if i == 0 else None,
-                )
-        ax.axhline(SUCCESS_AIM, color="0.6", ls=":", lw=1)
-        ax.set_title(task)
-        ax.set_xlabel("environment steps")
-        ax.set_ylim(-0.03, 1.03)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("deterministic success (10 episodes)")
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    panels: dict = {}
+    for (variant, task), seeds in curves.items():
+        panels.setdefault(task, {})[variant] = list(seeds.values())
+    learning_curves_plot(
+        dict(sorted(panels.items())), path, aim=SUCCESS_AIM, ylabel="deterministic success (10 episodes)"
+    )
     print(f"wrote {path}")
 
 

@@ -189,3 +189,31 @@ def test_the_variant_of_an_arch_is_bovine_then_close_ostia_then_separate(repo_ro
     assert script.variant_of({**apart, "lcca_lsa_gap_m": 0.0015}) == "close ostia"
     assert script.variant_of({**apart, "bca_lcca_gap_m": 0.0}) == "close ostia"
     assert script.variant_of({**apart, "bca_lcca_gap_m": 0.0, "bovine": True}) == "bovine"
+
+
+def test_curves_draw_the_median_and_spread_of_the_seeds_and_refuse_without_runs(tmp_path, repo_root):
+    from cathsim_dmc.evaluation.plots import seed_spread
+
+    script = load_script(repo_root / "scripts" / "generalisation.py")
+    successes = {0: [0.5, 0.9, 1.0], 1: [0.7, 0.6, 0.8], 2: [0.9, 1.0]}  # seed 2 stopped before step 4,000
+    for seed, rates in successes.items():
+        run = tmp_path / "runs" / "bca" / f"seed{seed}"
+        run.mkdir(parents=True)
+        lines = [json.dumps({"step": 2000 * i, "success_rate": r}) for i, r in enumerate(rates)]
+        (run / "evaluations.jsonl").write_text("\n".join(lines) + "\n")
+    seeds = [
+        [json.loads(line) for line in (tmp_path / "runs" / "bca" / f"seed{s}" / "evaluations.jsonl").open()]
+        for s in successes
+    ]
+    steps, median, low, high = seed_spread(seeds)
+    assert steps.tolist() == [0, 2000, 4000]
+    assert median.tolist() == [0.7, 0.9, 0.9] and low.tolist() == [0.5, 0.6, 0.8] and high.tolist() == [0.9, 1.0, 1.0]
+    out = script.curves(tmp_path, tmp_path / "curves.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    empty = subprocess.run(
+        [sys.executable, str(repo_root / "scripts" / "generalisation.py"), "--root", str(tmp_path / "none"), "curves"],
+        capture_output=True,
+        text=True,
+    )
+    assert empty.returncode == 2 and len(empty.stderr.strip().splitlines()) == 1 and "evaluations.jsonl" in empty.stderr

@@ -1,4 +1,4 @@
-"""Figures for evaluation reports: tip paths over the AP view, contact forces."""
+"""Figures for evaluation reports and training runs: tip paths over the AP view, contact forces, learning curves."""
 
 from __future__ import annotations
 
@@ -73,3 +73,45 @@ def force_plots(forces_per_episode, out_path, safe_force_n: float = 2.0, title: 
     fig.savefig(out_path, dpi=110)
     plt.close(fig)
     return Path(out_path)
+
+
+def seed_spread(seeds: list) -> tuple:
+    """(steps, median, low, high) of success over seeds, each seed a list of evaluations.jsonl
+    records ({"step", "success_rate"}); a step counts the seeds that reached it."""
+    by_step: dict = {}
+    for evaluations in seeds:
+        for e in evaluations:
+            by_step.setdefault(int(e["step"]), []).append(float(e["success_rate"]))
+    steps = sorted(by_step)
+    values = [by_step[s] for s in steps]
+    return (
+        np.array(steps),
+        np.array([np.median(v) for v in values]),
+        np.array([min(v) for v in values]),
+        np.array([max(v) for v in values]),
+    )
+
+
+def learning_curves_plot(panels: dict, out_path, aim: float | None = None, ylabel: str = "success") -> Path:
+    """One panel per key of `panels` ({label: [each seed's evaluations]}): the median success
+    over seeds against environment steps, the band from the lowest to the highest seed."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.2), squeeze=False)
+    for ax, (title, curves) in zip(axes[0], panels.items(), strict=True):
+        for label, seeds in curves.items():
+            steps, median, low, high = seed_spread(seeds)
+            (line,) = ax.plot(steps, median, lw=1.5, marker="o", ms=3, label=f"{label} ({len(seeds)} seeds)")
+            ax.fill_between(steps, low, high, color=line.get_color(), alpha=0.2, lw=0)
+        if aim is not None:
+            ax.axhline(aim, color="0.6", ls=":", lw=1)
+        ax.set_title(title)
+        ax.set_xlabel("environment steps")
+        ax.set_ylim(-0.03, 1.03)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    axes[0][0].set_ylabel(ylabel)
+    fig.tight_layout()
+    out_path = Path(out_path)
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return out_path
