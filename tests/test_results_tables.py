@@ -58,7 +58,9 @@ def test_a_page_without_its_table_is_refused(tables):
 def test_records_are_read_from_a_real_evaluation_sweep_and_the_bench_table(tables, tmp_path):
     sweep = tmp_path / "sweep"
     evaluate = [
-        "cathsim-eval",
+        sys.executable,
+        "-m",
+        "cathsim_dmc.app.cli.eval",
         "-m",
         "task=bca,lcca",
         "aorta=type1",
