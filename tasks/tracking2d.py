@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath
+from cathsim_dmc.anatomy.paths import CenterlinePath, deepest_on_polyline
 from cathsim_dmc.tasks.roadmap import AHEAD_MM, TRACK_AHEAD_M, TRACK_BACK_M
 
 TRACKED_MM = (0, 3, 6, 9, 12, 15, 20, 30)
@@ -105,7 +105,7 @@ class ImageTracker:
         # target) and each point's arc length along the 3-D line.
         road = (line.points + self._offset - origin) @ to_image.T
         lo, hi = (-np.inf, np.inf) if self._s is None else (self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
-        s, outside_mm = _locate(road, line.arclength, line.radius / MM, tip, lo, hi)
+        s, outside_mm = deepest_on_polyline(road, line.arclength, line.radius / MM, tip, lo, hi)
         self._s = s
         end = line.length_m
 
@@ -123,18 +123,3 @@ class ImageTracker:
                 [outside_mm],
             ]
         )
-
-
-def _locate(road_2d, arclength, radius_mm, point_2d, s_min, s_max) -> tuple[float, float]:
-    """(arc length along the 3-D line, depth outside the projected tube in mm) where the
-    image point lies deepest inside the tube, over arc lengths in [s_min, s_max]. A point
-    at parameter t along a projected segment is the projection of the point at t along the
-    3-D segment, so the arc length interpolates linearly."""
-    a, seg = road_2d[:-1], np.diff(road_2d, axis=0)
-    length2 = np.maximum((seg * seg).sum(axis=1), 1e-18)
-    t = np.clip(((point_2d - a) * seg).sum(axis=1) / length2, 0.0, 1.0)
-    s = arclength[:-1] + t * np.diff(arclength)
-    depth = np.linalg.norm(a + t[:, None] * seg - point_2d, axis=1) - np.interp(s, arclength, radius_mm)
-    depth = np.where((s >= s_min) & (s <= s_max), depth, np.inf)
-    i = int(np.argmin(depth))
-    return float(s[i]), float(depth[i])

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cathsim_dmc.anatomy.paths import CenterlinePath
+from cathsim_dmc.anatomy.paths import CenterlinePath, deepest_on_polyline
 from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.tasks.roadmap import AHEAD_MM, CM, ROADMAP_SIZE
 
@@ -168,3 +168,25 @@ def test_a_step_has_one_roadmap_measurement_however_often_it_is_read():
             obs, *_ = env.step(np.array([1.0, 0.0], np.float32))
     finally:
         env.close()
+
+
+def test_a_tracking_window_inside_one_long_segment_still_locates_the_tip():
+    """The tip tracked from step to step: a window within one long straight segment, with the
+    tip's nearest point on it behind the window (pulled back faster than the window's
+    back margin), gives the window's near end and a finite depth, in 3-D and in the image."""
+    line = CenterlinePath([[0.0, 0.0, 0.0], [0.0, 0.0, 0.10], [0.0, 0.01, 0.11]], 0.01)
+    tip = np.array([0.002, 0.0, 0.02])
+    s, outside = line.locate(tip, 0.05, 0.07)
+    assert s == pytest.approx(0.05) and np.isfinite(outside)
+    assert outside == pytest.approx(np.linalg.norm(line.at(0.05) - tip) - 0.01)
+    # Unwindowed, the same point is found where it lies.
+    assert line.locate(tip)[0] == pytest.approx(0.02)
+    road_2d = line.points[:, 1:]  # the line seen along x
+    s_2d, outside_2d = deepest_on_polyline(road_2d, line.arclength, line.radius, tip[1:], 0.05, 0.07)
+    assert s_2d == pytest.approx(0.05) and np.isfinite(outside_2d)
+
+
+def test_a_window_that_holds_no_part_of_the_line_is_refused():
+    line = CenterlinePath([[0.0, 0.0, 0.0], [0.0, 0.0, 0.10]], 0.01)
+    with pytest.raises(ValueError, match="holds no part of the line"):
+        line.locate([0.0, 0.0, 0.05], 0.5, 0.6)

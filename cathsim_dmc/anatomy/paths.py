@@ -18,6 +18,39 @@ from typing import Mapping
 import numpy as np
 
 
+def deepest_on_polyline(
+    points, arclength_m, radius, point, s_min: float = -np.inf, s_max: float = np.inf, segment_s=None
+) -> tuple:
+    """(arc length, depth outside the tube) where `point` lies deepest inside the tube of
+    `points` (N x 2 or N x 3) +- `radius` (per point), over arc lengths in [s_min, s_max].
+
+    `arclength_m` gives each point's arc length (the polyline's own, or a 3-D line's for
+    its projection: t along a projected segment is t along the 3-D one), `segment_s` each
+    segment's share of it (default: the differences of `arclength_m`). Each segment is
+    searched over its part inside the window, so a window within one long segment, or a
+    point whose nearest point on a segment lies outside the window, still gets the
+    deepest point of the window's stretch. An empty window (s_min > s_max, or beyond the
+    line) raises ValueError.
+    """
+    p = np.asarray(point, dtype=float)
+    a, seg = points[:-1], np.diff(points, axis=0)
+    seg_s = np.diff(arclength_m) if segment_s is None else segment_s
+    starts = arclength_m[:-1]
+    inside = (arclength_m[1:] >= s_min) & (starts <= s_max)
+    if not inside.any():
+        raise ValueError(f"arc length window [{s_min}, {s_max}] m holds no part of the line (0 to {arclength_m[-1]} m)")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo = np.where(seg_s > 0, (s_min - starts) / seg_s, 0.0)
+        hi = np.where(seg_s > 0, (s_max - starts) / seg_s, 1.0)
+    t = np.einsum("ij,ij->i", p - a, seg) / np.maximum(np.linalg.norm(seg, axis=1) ** 2, 1e-18)
+    t = np.clip(np.clip(t, np.clip(lo, 0, 1), np.clip(hi, 0, 1)), 0, 1)
+    s = starts + t * seg_s
+    depth = np.linalg.norm(a + t[:, None] * seg - p, axis=1) - np.interp(s, arclength_m, radius)
+    depth = np.where(inside, depth, np.inf)
+    i = int(np.argmin(depth))
+    return float(s[i]), float(depth[i])
+
+
 class CenterlinePath:
     """One polyline with its lumen radius: arc length, closest-point queries, interpolation.
 
@@ -45,14 +78,7 @@ class CenterlinePath:
         in the parent, not in the closer but narrower start of the branch. A negative depth
         means inside the tube.
         """
-        p = np.asarray(point_m, dtype=float)
-        a = self.points[:-1]
-        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / np.maximum(self._seg_len**2, 1e-18), 0, 1)
-        s = self.arclength[:-1] + t * self._seg_len
-        depth = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1) - np.interp(s, self.arclength, self.radius)
-        depth = np.where((s >= s_min) & (s <= s_max), depth, np.inf)
-        i = int(np.argmin(depth))
-        return float(s[i]), float(depth[i])
+        return deepest_on_polyline(self.points, self.arclength, self.radius, point_m, s_min, s_max, self._seg_len)
 
     def at(self, s_m: float) -> np.ndarray:
         s = float(np.clip(s_m, 0.0, self.arclength[-1]))
