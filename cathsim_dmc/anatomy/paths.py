@@ -19,31 +19,40 @@ import numpy as np
 
 
 def deepest_on_polyline(
-    points, arclength_m, radius, point, s_min: float = -np.inf, s_max: float = np.inf, segment_s=None
+    points, arclength_m, radius, point, s_min: float = -np.inf, s_max: float = np.inf, segments=None
 ) -> tuple:
     """(arc length, depth outside the tube) where `point` lies deepest inside the tube of
     `points` (N x 2 or N x 3) +- `radius` (per point), over arc lengths in [s_min, s_max].
 
     `arclength_m` gives each point's arc length (the polyline's own, or a 3-D line's for
-    its projection: t along a projected segment is t along the 3-D one), `segment_s` each
-    segment's share of it (default: the differences of `arclength_m`). Each segment is
-    searched over its part inside the window, so a window within one long segment, or a
-    point whose nearest point on a segment lies outside the window, still gets the
-    deepest point of the window's stretch. An empty window (s_min > s_max, or beyond the
-    line) raises ValueError.
+    its projection: t along a projected segment is t along the 3-D one). `segments`, for a
+    polyline queried often: (segment vectors, their squared lengths, their arc lengths),
+    computed once. Each segment is searched over its part inside the window, so a window
+    within one long segment, or a point whose nearest point on a segment lies outside the
+    window, still gets the deepest point of the window's stretch. An empty window
+    (s_min > s_max, or beyond the line) raises ValueError.
     """
     p = np.asarray(point, dtype=float)
-    a, seg = points[:-1], np.diff(points, axis=0)
-    seg_s = np.diff(arclength_m) if segment_s is None else segment_s
-    starts = arclength_m[:-1]
-    inside = (arclength_m[1:] >= s_min) & (starts <= s_max)
-    if not inside.any():
-        raise ValueError(f"arc length window [{s_min}, {s_max}] m holds no part of the line (0 to {arclength_m[-1]} m)")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.where(seg_s > 0, (s_min - starts) / seg_s, 0.0)
-        hi = np.where(seg_s > 0, (s_max - starts) / seg_s, 1.0)
-    t = np.einsum("ij,ij->i", p - a, seg) / np.maximum(np.linalg.norm(seg, axis=1) ** 2, 1e-18)
-    t = np.clip(np.clip(t, np.clip(lo, 0, 1), np.clip(hi, 0, 1)), 0, 1)
+    a, starts = points[:-1], arclength_m[:-1]
+    if segments is None:
+        seg = np.diff(points, axis=0)
+        segments = (seg, np.einsum("ij,ij->i", seg, seg), np.diff(arclength_m))
+    seg, length_sq, seg_s = segments
+    t = np.einsum("ij,ij->i", p - a, seg) / np.maximum(length_sq, 1e-18)
+    inside = True
+    if np.isfinite(s_min) or np.isfinite(s_max):
+        inside = (arclength_m[1:] >= s_min) & (starts <= s_max)
+        if not inside.any():
+            raise ValueError(
+                f"arc length window [{s_min}, {s_max}] m holds no part of the line (0 to {arclength_m[-1]} m)"
+            )
+        # each segment's part inside the window, as a range of t
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo = np.clip(np.where(seg_s > 0, (s_min - starts) / seg_s, 0.0), 0, 1)
+            hi = np.clip(np.where(seg_s > 0, (s_max - starts) / seg_s, 1.0), 0, 1)
+        t = np.clip(t, lo, hi)
+    else:
+        t = np.clip(t, 0, 1)
     s = starts + t * seg_s
     depth = np.linalg.norm(a + t[:, None] * seg - p, axis=1) - np.interp(s, arclength_m, radius)
     depth = np.where(inside, depth, np.inf)
@@ -69,6 +78,7 @@ class CenterlinePath:
         self._seg_len = np.linalg.norm(self._seg, axis=1)
         self.arclength = np.concatenate([[0.0], np.cumsum(self._seg_len)])
         self.length_m = float(self.arclength[-2])  # arc length of the last given point (the site)
+        self._segments = (self._seg, self._seg_len**2, self._seg_len)  # for locate, every step
 
     def locate(self, point_m, s_min: float = -np.inf, s_max: float = np.inf) -> tuple[float, float]:
         """(arc length, depth outside the tube) of `point_m`, over arc lengths in [s_min, s_max].
@@ -78,7 +88,7 @@ class CenterlinePath:
         in the parent, not in the closer but narrower start of the branch. A negative depth
         means inside the tube.
         """
-        return deepest_on_polyline(self.points, self.arclength, self.radius, point_m, s_min, s_max, self._seg_len)
+        return deepest_on_polyline(self.points, self.arclength, self.radius, point_m, s_min, s_max, self._segments)
 
     def at(self, s_m: float) -> np.ndarray:
         s = float(np.clip(s_m, 0.0, self.arclength[-1]))
