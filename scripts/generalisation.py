@@ -551,23 +551,29 @@ def _failures_near_target(scores: Path, within_m: float = 0.0085) -> tuple:
     return len(final), sum(d < within_m for d in final)
 
 
-def ship(root: Path, task: str) -> Path:
+def ship(root: Path, task: str, seed: int | None = None, why: str | None = None) -> Path:
     """Export the navigator seed that scores best on the tuning pool (never the held-out one)
-    as the shipped `policy=pretrained` for `task`, with its model card."""
+    as the shipped `policy=pretrained` for `task`, with its model card; or seed `seed`, with
+    `why` (how it was chosen) on the card."""
     from cathsim_dmc.agents.pretrained import export_actor
 
     scores = root / "scores" / task
-    candidates = {}
-    for folder in scores.glob("navigator_seed*_best"):
-        m = _metrics(folder / TUNING_NAME)
-        if m:
-            candidates[folder] = (m["summary"]["success_pct"]["mean"], m["summary"]["spl_pct"]["mean"])
     seeds = sorted(scores.glob("navigator_seed*_best"))
-    if not candidates and len(seeds) == 1:
-        candidates = {seeds[0]: (0.0, 0.0)}  # one seed: nothing to choose between
-    if not candidates:
-        raise SystemExit(f"no navigator of {task} scored on the tuning pool in {scores}: run evaluate first")
-    chosen = max(candidates, key=candidates.get)
+    if seed is not None:
+        chosen = scores / f"navigator_seed{seed}_best"
+        if not (root / "runs" / task / f"seed{seed}" / "checkpoints" / "best.json").is_file():
+            raise UsageError(f"--seed {seed}: no finished run of {task} seed {seed} in {root / 'runs' / task}")
+    else:
+        candidates = {}
+        for folder in seeds:
+            m = _metrics(folder / TUNING_NAME)
+            if m:
+                candidates[folder] = (m["summary"]["success_pct"]["mean"], m["summary"]["spl_pct"]["mean"])
+        if not candidates and len(seeds) == 1:
+            candidates = {seeds[0]: (0.0, 0.0)}  # one seed: nothing to choose between
+        if not candidates:
+            raise SystemExit(f"no navigator of {task} scored on the tuning pool in {scores}: run evaluate first")
+        chosen = max(candidates, key=candidates.get)
     seed = chosen.name.split("_")[1]
     run = root / "runs" / task / seed
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
@@ -599,9 +605,12 @@ def ship(root: Path, task: str) -> Path:
     stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
     failed, near = _failures_near_target(scores)
     wide_branch = WIDE_BRANCH_LIMIT.format(failed=failed, near=near) if task == "bca" else ""
-    chosen_by = (
-        f"chosen among {len(seeds)} seeds by the tuning pool" if len(seeds) > 1 else "the only seed trained so far"
-    )
+    if why:
+        chosen_by = why
+    elif len(seeds) > 1:
+        chosen_by = f"chosen among {len(seeds)} seeds by the tuning pool"
+    else:
+        chosen_by = "the only seed trained so far"
     what = f"{PRESET_CARD[obs]}; " if obs in PRESET_CARD else ""
     catheter = config.task.get("catheter")
     actions = (
@@ -715,8 +724,10 @@ def main(argv=None) -> int:
         sweeps.add_launcher_options(command)
     rep = sub.add_parser("report")
     rep.add_argument("--out", type=Path, default=None)
-    shp = sub.add_parser("ship", help="export the seed best on the tuning pool as policy=pretrained")
+    shp = sub.add_parser("ship", help="export the tuning pool's best seed (or --seed) as policy=pretrained")
     shp.add_argument("--task", choices=TARGETS, default="bca")
+    shp.add_argument("--seed", type=int, help="ship this seed instead of the tuning pool's best (needs --why)")
+    shp.add_argument("--why", help="with --seed: how the seed was chosen, written on the model card")
     crv = sub.add_parser("curves", help="the navigators' learning curves (median and spread over seeds)")
     crv.add_argument("--out", type=Path, default=Path("navigator_curves.png"))
     args = parser.parse_args(argv)
@@ -738,6 +749,11 @@ def main(argv=None) -> int:
         if args.command == "curves":
             print(f"wrote {curves(args.root, args.out)}")
             return 0
+        if args.command == "ship":
+            if (args.seed is None) != (args.why is None):
+                raise UsageError("ship: give --seed and --why together, or neither (the tuning pool's best)")
+            ship(args.root, args.task, args.seed, args.why)
+            return 0
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -752,10 +768,7 @@ def main(argv=None) -> int:
             args.anatomies,
             launcher,
         )
-    if args.command == "ship":
-        ship(args.root, args.task)
-    else:
-        report(args.root, args.out)
+    report(args.root, args.out)
     return 0
 
 

@@ -174,6 +174,8 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, repo_root):
         (["train", "--launcher", "slurmm"], "--launcher slurmm: choose one of"),
         (["evaluate", "--jobs", "0"], "--jobs 0: give 1 or more"),
         (["evaluate", "trainer.device=cuda"], "trainer.device=cuda"),
+        (["ship", "--seed", "2"], "give --seed and --why together"),
+        (["ship", "--seed", "2", "--why", "best"], "--seed 2: no finished run of bca seed 2"),
     ):
         result = _script(repo_root, "--root", str(tmp_path), *args)
         assert result.returncode == 2, result.stdout + result.stderr
