@@ -221,6 +221,14 @@ def test_an_asset_folder_is_an_aorta_and_names_the_run_and_the_table(tmp_path):
     assert [run.name for run in runs] == ["bca-my_phantom"]
     table = next(runs[0].iterdir()) / "metrics.md"
     assert "| BCA | my_phantom | forward |" in table.read_text()
+    # The form it is rewritten to, which a sweep over folders needs (scripts/generalisation.py).
+    result = _run(
+        ["-m", "task=bca", "aorta=folder", f"aorta.name={folder}", "aorta.label=corpus", "policy=forward"]
+        + ["episodes=1", "task.max_steps=3", "video=false"],
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    assert list((tmp_path / "multirun").rglob("metrics.md")), result.stdout
 
 
 @pytest.mark.parametrize("value, reason", [("nowhere", "not a folder"), (".", "a folder without meta.json")])

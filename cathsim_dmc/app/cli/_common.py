@@ -60,13 +60,14 @@ def _given(argv: Sequence[str]) -> dict:
 def expand_aorta_folder(argv: Sequence[str], choices: Sequence[str]) -> list:
     """`aorta=DIR` (an asset folder: meta.json inside) -> `aorta=folder aorta.name=<DIR,
     absolute> aorta.label=<DIR's name>`, which Hydra can compose: the run folder and the
-    tables then carry the folder's name. Other arguments pass unchanged; a value that is
-    neither a known aorta nor an asset folder exits with one line.
+    tables then carry the folder's name. Other arguments pass unchanged (`aorta=folder
+    aorta.name=DIR` too, the form a sweep over folders takes); a value that is neither a
+    known aorta nor an asset folder exits with one line.
     """
     out = []
     for arg in argv:
         key, sep, value = arg.partition("=")
-        if key != "aorta" or not sep or value in choices or "," in value:
+        if key != "aorta" or not sep or value in (*choices, ASSET_FOLDER_OPTION) or "," in value:
             out.append(arg)
             continue
         folder = Path(value).expanduser()
