@@ -286,3 +286,14 @@ def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
     cfg = OmegaConf.create(_compose(tool))
     config_tools.validate(cfg, tool)
     assert set(cfg) - {"hydra"} == {spec.name for spec in dataclasses.fields(TOOL_SCHEMAS[tool])}
+
+
+def test_every_image_preset_trains_with_the_image_recipe_and_the_others_with_the_default():
+    # One shared encoder and batch 64 on images: with batch 256 and three encoders an
+    # update costs several times as much (conf/algo_for_obs/sac_tuned_enn.yaml).
+    default = _compose()["algo"]
+    for option in sorted(path.stem for path in (conf_root() / "obs").glob("*.yaml")):
+        algo = _compose(overrides=[f"obs={option}"])["algo"]
+        images = _yaml("obs", option).get("renderer") is not None
+        expected = (64, True) if images else (default["batch_size"], default["share_features_extractor"])
+        assert (algo["batch_size"], algo["share_features_extractor"]) == expected, option
