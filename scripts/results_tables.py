@@ -210,14 +210,14 @@ def readme_table(records: dict) -> list:
         median = statistics.median(s["success"] / s["episodes"] * 100 for s in seeds)
         e = expert[target]
         cells.append(f"{target} {_pct(median)}% (expert {_pct(e['success'] / e['episodes'] * 100)}%)")
-    # a row measured before the record's latest rows carries its own "when"
-    whens = sorted({r["when"] for r in shipped_rows.values() if r.get("when")})
+    # a row measured before the record's latest rows carries its own "when"; the others the record's
+    whens = sorted({r.get("when") or f"{navigators['date']}, {navigators['commit']}" for r in shipped_rows.values()})
     rows.append(
         _readme_row(
             "navigators for unseen anatomy (`policy=pretrained`), 100 held-out arches of `aorta=random`, "
             "median over seeds",
             ", ".join(cells),
-            navigators | ({"when": "; ".join(whens)} if whens else {}),
+            navigators | {"when": "; ".join(whens)},
             "docs/training.md#unseen-anatomy",
         )
     )
