@@ -574,8 +574,8 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None)
         if not candidates:
             raise SystemExit(f"no navigator of {task} scored on the tuning pool in {scores}: run evaluate first")
         chosen = max(candidates, key=candidates.get)
-    seed = chosen.name.split("_")[1]
-    run = root / "runs" / task / seed
+    run_name = chosen.name.split("_")[1]  # "seed2": the run's folder under ROOT/runs/<task>
+    run = root / "runs" / task / run_name
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
     anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
@@ -597,7 +597,7 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None)
 
     config = OmegaConf.load(run / "config.yaml")
     obs = config.obs.name
-    command = f"cathsim-train +experiment=navigator task={task} {seed.replace('seed', 'seed=')}"
+    command = f"cathsim-train +experiment=navigator task={task} {run_name.replace('seed', 'seed=')}"
     if obs != recipe_obs():  # trained before the recipe's preset changed: its own
         command += f" obs={obs}"
     steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]

@@ -289,8 +289,8 @@ def test_every_tools_shipped_defaults_lie_in_its_schemas_ranges(tool):
 
 
 def test_every_image_preset_trains_with_the_image_recipe_and_the_others_with_the_default():
-    # One shared encoder and batch 64 on images: with batch 256 and three encoders an
-    # update costs several times as much (conf/algo_for_obs/sac_tuned_enn.yaml).
+    # One shared encoder and batch 64 on images: batch 256 costs several times as much per
+    # update (the cost measured in conf/algo_for_obs/sac_tuned_fluoro.yaml).
     default = _compose()["algo"]
     for option in sorted(path.stem for path in (conf_root() / "obs").glob("*.yaml")):
         algo = _compose(overrides=[f"obs={option}"])["algo"]
