@@ -22,6 +22,7 @@ PRESET_OBSERVABLES = (
     "roadmap",
     "robot_state",
     "target_depth_time",
+    "target_stall_time",
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",
