@@ -401,7 +401,7 @@ class Navigate(composer.Task):
 
     def _observes_image_plane(self) -> bool:
         observables = self._task_observables
-        return observables["tracking_2d"].enabled or observables["roadmap_2d"].enabled
+        return any(observables[name].enabled for name in ("tracking_2d", "roadmap_2d", "tracking_2d_history"))
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])

@@ -87,6 +87,7 @@ def task_observables(
         # as the task measured them at the end of the step.
         "tracking_2d": observable.Generic(image_tracker.tracked),
         "roadmap_2d": observable.Generic(image_tracker.roadmap),
+        "tracking_2d_history": observable.Generic(image_tracker.history),
         # The C-arm's angles as it reports them: LAO (negative: RAO) and cranial (negative: caudal), radians.
         "carm_view": observable.Generic(lambda physics: np.radians(np.asarray(task.carm_view_deg, dtype=float))),
         "guidewire_mask": observable.Generic(top_view.mask),

@@ -26,6 +26,7 @@ PRESET_OBSERVABLES = (
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",
+    "tracking_2d_history",
     "carm_view",
 )
 # Options a preset file may set (besides name and observables).

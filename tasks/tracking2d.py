@@ -25,6 +25,12 @@ tracked from step to step within `TRACK_BACK_M` behind and `TRACK_AHEAD_M` ahead
 `roadmap` tracker does), so that it cannot jump to a stretch of vessel that crosses the
 one the tip is in, in the projection.
 
+`tracking_2d_history` (preset `tracking_2d_memory`) is a frame stack of the tracking: the
+tracked points of the `HISTORY_STEPS` measurements before this one, newest first, each
+relative to this measurement's tracked tip (2 per point; before the episode's first
+measurement, its first). How the image responds to the robot's moves over a few frames is
+what shows the depth and roll one view hides.
+
 Neither holds anything a single-plane image and the pre-operative roadmap do not give:
 no depth along the view axis, no 3-D tip, no wire angles, no forces.
 """
@@ -38,6 +44,8 @@ from cathsim_dmc.tasks.roadmap import AHEAD_MM, TRACK_AHEAD_M, TRACK_BACK_M
 
 TRACKED_MM = (0, 3, 6, 9, 12, 15, 20, 30)
 TRACKING_2D_SIZE = 2 * len(TRACKED_MM)
+HISTORY_STEPS = 4  # tracking_2d_history: the control steps it remembers (at 10 frames/s, 0.4 s)
+TRACKING_2D_HISTORY_SIZE = HISTORY_STEPS * TRACKING_2D_SIZE
 ROADMAP_2D_SIZE = 2 * len(AHEAD_MM) + 2 + 2 + 1 + 1
 MM = 1e-3
 
@@ -73,6 +81,7 @@ class ImageTracker:
         self._offset = np.zeros(3)
         self._s = None
         self._tracked = np.zeros(TRACKING_2D_SIZE)
+        self._history = []  # the episode's last HISTORY_STEPS + 1 tracked point sets, oldest first
         self._roadmap = np.zeros(ROADMAP_2D_SIZE)
 
     def start(self, random_state, registration_offset_m) -> None:
@@ -81,10 +90,21 @@ class ImageTracker:
         self._random_state = random_state
         self._offset = np.asarray(registration_offset_m, dtype=float).copy()
         self._s = None
+        self._history = []
 
     def tracked(self, physics=None) -> np.ndarray:
         """The last measurement's tracked wire points (the `tracking_2d` observable)."""
         return self._tracked.copy()
+
+    def history(self, physics=None) -> np.ndarray:
+        """The tracked points of the `HISTORY_STEPS` measurements before the last, newest
+        first, relative to the last one's tip (the `tracking_2d_history` observable)."""
+        if not self._history:
+            return np.zeros(TRACKING_2D_HISTORY_SIZE)
+        earlier = self._history[:-1][::-1] or [self._history[0]]
+        earlier = earlier + [earlier[-1]] * (HISTORY_STEPS - len(earlier))
+        tip = self._history[-1][0]
+        return np.concatenate([(points - tip).ravel() for points in earlier])
 
     def roadmap(self, physics=None) -> np.ndarray:
         """The last measurement's projected roadmap (the `roadmap_2d` observable)."""
@@ -114,6 +134,7 @@ class ImageTracker:
 
         ahead = np.array([projected(s + d * MM) for d in AHEAD_MM]) - tip
         self._tracked = tracked.ravel()
+        self._history = [*self._history[-HISTORY_STEPS:], tracked]
         self._roadmap = np.concatenate(
             [
                 ahead.ravel(),

@@ -11,13 +11,20 @@ from cathsim_dmc.sim import detector, raster
 from cathsim_dmc.sim.arena import carm_camera_axes
 from cathsim_dmc.suite.gym import CathSimEnv
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
-from cathsim_dmc.tasks.tracking2d import ROADMAP_2D_SIZE, TRACKED_MM, TRACKING_2D_SIZE
+from cathsim_dmc.tasks.tracking2d import (
+    HISTORY_STEPS,
+    ROADMAP_2D_SIZE,
+    TRACKED_MM,
+    TRACKING_2D_HISTORY_SIZE,
+    TRACKING_2D_SIZE,
+)
 
 # What each preset may hold: the image, the overlay or the image-plane tracking, the robot's
 # encoders and the C-arm's reported angles. Nothing else.
 ALLOWED = {
     "fluoro": {"pixels", "roadmap_overlay", "robot_state", "carm_view"},
     "tracking_2d": {"tracking_2d", "roadmap_2d", "robot_state", "carm_view"},
+    "tracking_2d_memory": {"tracking_2d", "tracking_2d_history", "roadmap_2d", "robot_state", "carm_view"},
 }
 # What the image does not show: the 3-D tip (roadmap, tip_position), depth along the view
 # axis (roadmap's tip frame), wall and drive forces, the wire's bending angles and rates
@@ -42,6 +49,7 @@ SHAPES = {
     "carm_view": (2,),
     "tracking_2d": (TRACKING_2D_SIZE,),
     "roadmap_2d": (ROADMAP_2D_SIZE,),
+    "tracking_2d_history": (TRACKING_2D_HISTORY_SIZE,),
 }
 FORWARD = np.array([1.0, 0.3], dtype=np.float32)
 
@@ -74,9 +82,17 @@ def tracking_env():
     env.close()
 
 
+@pytest.fixture(scope="module")
+def memory_env():
+    env = CathSimEnv(task="bca", aorta="type1", obs="tracking_2d_memory")
+    yield env
+    env.close()
+
+
 @pytest.mark.parametrize("preset", sorted(ALLOWED))
 def test_the_presets_hold_only_what_a_c_arm_shows(preset, request):
-    env = request.getfixturevalue(f"{preset.split('_')[0]}_env")
+    fixture = {"fluoro": "fluoro_env", "tracking_2d": "tracking_env", "tracking_2d_memory": "memory_env"}[preset]
+    env = request.getfixturevalue(fixture)
     assert OBSERVATION_PRESETS[preset].enabled == ALLOWED[preset]
     # Every observable the task can make is classified: a new one must be added to a list here.
     assert set(env.task.task_observables) == set().union(*ALLOWED.values(), PRIVILEGED)
@@ -216,6 +232,26 @@ def test_tracking_2d_is_the_wire_projected_into_the_image(tracking_env):
     assert road[-1] < 0 and road[15] > road[1]
     remaining = road[-2]
     assert _drive(env, 10, np.array([1.0, 0.0], np.float32))["roadmap_2d"][-2] < remaining - 20
+
+
+def test_the_tracking_history_is_the_earlier_frames_relative_to_the_tip(memory_env, tracking_env):
+    """tracking_2d_memory: the tracked points of the HISTORY_STEPS frames before this one,
+    newest first, relative to this frame's tip; at the reset, the first frame repeated.
+    Its other observables are tracking_2d's."""
+    frames = []
+    obs, _ = memory_env.reset(seed=2)
+    plain, _ = tracking_env.reset(seed=2)
+    for step in range(8):
+        frames.append(obs["tracking_2d"].reshape(-1, 2).astype(float))
+        np.testing.assert_array_equal(obs["tracking_2d"], plain["tracking_2d"])
+        np.testing.assert_array_equal(obs["roadmap_2d"], plain["roadmap_2d"])
+        tip = frames[-1][0]
+        earlier = [frames[max(step - k, 0)] for k in range(1, HISTORY_STEPS + 1)]
+        expected = np.concatenate([(points - tip).ravel() for points in earlier])
+        np.testing.assert_allclose(obs["tracking_2d_history"], expected, atol=1e-4)
+        obs, *_ = memory_env.step(FORWARD)
+        plain, *_ = tracking_env.step(FORWARD)
+    assert np.abs(obs["tracking_2d_history"][:2]).max() > 0.5  # the wire moved: the tip of one frame ago differs
 
 
 def test_the_c_arm_view_is_drawn_per_episode_from_its_seed():
