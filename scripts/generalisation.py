@@ -260,8 +260,6 @@ PRESET_CARD = {
     "roadmap": "the registered roadmap around the tracked tip, in the tip's frame, and the robot's encoders",
     "roadmap_timed": "the registered roadmap around the tracked tip, in the tip's frame, the robot's encoders, "
     "and the steps the tip has stayed at the target's depth",
-    "roadmap_clocks": "the registered roadmap around the tracked tip, in the tip's frame, the robot's encoders, "
-    "the steps the tip has stayed at the target's depth and the steps it has stayed near the target, no closer",
 }
 
 

@@ -13,7 +13,7 @@ from dm_control.composer.observation import observable
 from cathsim_dmc.core.registry import EXTRA_OBSERVATIONS
 from cathsim_dmc.sim import detector, raster
 from cathsim_dmc.sim.render import ObservationSettings, TopView, image_noise
-from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS, STALL_CLOCK_STEPS, RoadmapTracker
+from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS, RoadmapTracker
 from cathsim_dmc.tasks.tracking2d import ImageTracker
 
 
@@ -70,10 +70,6 @@ def task_observables(
         # The steps the tracked tip has stayed at the target's depth (the task's count), over DEPTH_CLOCK_STEPS.
         "target_depth_time": observable.Generic(
             lambda physics: np.array([min(task.steps_at_target_depth, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
-        ),
-        # The steps the tracked tip has stayed near the target, no closer (the task's count), over STALL_CLOCK_STEPS.
-        "target_stall_time": observable.Generic(
-            lambda physics: np.array([min(task.steps_stalled_near_target, STALL_CLOCK_STEPS) / STALL_CLOCK_STEPS])
         ),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         # The registered roadmap overlaid on the fluoroscope's view: the lumen's silhouette

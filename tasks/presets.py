@@ -22,7 +22,6 @@ PRESET_OBSERVABLES = (
     "roadmap",
     "robot_state",
     "target_depth_time",
-    "target_stall_time",
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",

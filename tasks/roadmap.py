@@ -37,12 +37,6 @@ full-speed insertion step of it along the roadmap), over `DEPTH_CLOCK_STEPS`, at
 The task keeps the count (`Navigate.steps_at_target_depth`). With it, the scripted
 expert's end game (strokes past the target and back, timed by its own count of the same
 steps) becomes a function of what the policy observes.
-
-`target_stall_time` (preset `roadmap_clocks`) is the other count the expert keeps: how
-many control steps the tracked tip has stayed within `STALL_NEAR_M` of the target without
-coming `STALL_PROGRESS_M` closer than its closest approach, over `STALL_CLOCK_STEPS`, at
-most 1. At that count the expert brings the catheter up (a branch the wire alone cannot
-enter); without the clock, when the catheter comes up is hidden state.
 """
 
 from __future__ import annotations
@@ -58,9 +52,6 @@ CM = 0.01
 TRACK_BACK_M, TRACK_AHEAD_M = 0.01, 0.03
 # target_depth_time's unit: control steps (the expert's end game takes about 50 in a BCA).
 DEPTH_CLOCK_STEPS = 100
-# target_stall_time: the expert's catheter rule (cathsim_dmc/control/expert.py:
-# catheter_bring_up_m, min_progress_m, catheter_stall_steps).
-STALL_NEAR_M, STALL_PROGRESS_M, STALL_CLOCK_STEPS = 0.030, 1e-3, 60
 
 
 class RoadmapTracker:
@@ -76,7 +67,6 @@ class RoadmapTracker:
         self._random_state = np.random.RandomState(0)
         self._offset = np.zeros(3)
         self._s = None
-        self._target_distance_m = np.inf
         self._features = np.zeros(ROADMAP_SIZE)  # before the first episode: a placeholder of the right shape
 
     def start(self, random_state) -> None:
@@ -100,11 +90,6 @@ class RoadmapTracker:
     def registration_offset_m(self) -> np.ndarray:
         """This episode's registration error: the roadmap lies this world vector off (metres)."""
         return self._offset.copy()
-
-    @property
-    def target_distance_m(self) -> float:
-        """The last measurement's distance from the tracked tip to the roadmap's target (m)."""
-        return self._target_distance_m
 
     @property
     def remaining_m(self) -> float:
@@ -135,7 +120,6 @@ class RoadmapTracker:
             s, outside = line.locate(tip, self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
         self._s = s
         end = line.length_m
-        self._target_distance_m = float(np.linalg.norm(line.at(end) - tip))
         # Past the target the roadmap runs on along the branch (the line's extension): near
         # the target the points still show the branch's axis, which the last turn needs.
         ahead = np.array([line.at(s + d * 1e-3) for d in AHEAD_MM]) - tip

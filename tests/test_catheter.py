@@ -172,30 +172,3 @@ def test_the_built_in_wire_policies_leave_the_catheter_parked():
     assert BUILTIN_POLICIES["random"](seed=1)(observation, env).shape == (3,)  # random drives the catheter too
     plain = CathSimEnv("bca", "type1", "internal")
     assert BUILTIN_POLICIES["forward"]()(observation, plain).shape == (2,)
-
-
-def test_the_stall_clock_counts_the_steps_the_expert_brings_the_catheter_up_by(reverse_angle_lcca):
-    """obs=roadmap_clocks: target_stall_time is the expert's own count of steps near the
-    target without coming closer, and it is full at the step the catheter comes up."""
-    from cathsim_dmc.tasks.roadmap import STALL_CLOCK_STEPS
-
-    env = CathSimEnv("lcca", reverse_angle_lcca, "roadmap_clocks", catheter="angled_5f")
-    expert = CenterlineExpert()
-    observation, _ = env.reset(seed=0)
-    clocks = []
-    try:
-        for _ in range(300):
-            assert set(observation) == {"roadmap", "robot_state", "target_depth_time", "target_stall_time"}
-            action = expert(observation, env)
-            clock = round(float(observation["target_stall_time"][0]) * STALL_CLOCK_STEPS)
-            assert clock == min(env.task.steps_stalled_near_target, STALL_CLOCK_STEPS)
-            if expert.uses_catheter:
-                break
-            clocks.append((clock, expert._steps_no_closer))
-            observation, _, terminated, truncated, _ = env.step(action)
-            assert not (terminated or truncated)
-    finally:
-        env.close()
-    assert expert.uses_catheter and clock == STALL_CLOCK_STEPS  # the clock was full when the catheter came up
-    assert [c for c, _ in clocks] == [count for _, count in clocks]
-    assert max(c for c, _ in clocks) == STALL_CLOCK_STEPS - 1

@@ -28,14 +28,12 @@ ALLOWED = {
 }
 # What the image does not show: the 3-D tip (roadmap, tip_position), depth along the view
 # axis (roadmap's tip frame), wall and drive forces, the wire's bending angles and rates
-# (joint_pos, joint_vel), its slack, the simulator's own wire segmentation and the clocks kept
-# on the 3-D tip.
+# (joint_pos, joint_vel), its slack, the simulator's own wire segmentation and the depth clock.
 PRIVILEGED = {
     "joint_pos",
     "joint_vel",
     "roadmap",
     "target_depth_time",
-    "target_stall_time",
     "tip_position",
     "contact_force",
     "wire_slack",
