@@ -37,6 +37,8 @@ no depth along the view axis, no 3-D tip, no wire angles, no forces.
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from cathsim_dmc.anatomy.paths import CenterlinePath, deepest_on_polyline
@@ -80,8 +82,9 @@ class ImageTracker:
         self._random_state = np.random.RandomState(0)
         self._offset = np.zeros(3)
         self._s = None
-        self._tracked = np.zeros(TRACKING_2D_SIZE)
-        self._history = []  # the episode's last HISTORY_STEPS + 1 tracked point sets, oldest first
+        # The episode's last HISTORY_STEPS + 1 measurements' tracked points, oldest first (the
+        # first measurement fills it); the newest is `tracking_2d`.
+        self._frames = deque([np.zeros((len(TRACKED_MM), 2))] * (HISTORY_STEPS + 1), maxlen=HISTORY_STEPS + 1)
         self._roadmap = np.zeros(ROADMAP_2D_SIZE)
 
     def start(self, random_state, registration_offset_m) -> None:
@@ -90,21 +93,17 @@ class ImageTracker:
         self._random_state = random_state
         self._offset = np.asarray(registration_offset_m, dtype=float).copy()
         self._s = None
-        self._history = []
+        self._frames.clear()
 
     def tracked(self, physics=None) -> np.ndarray:
         """The last measurement's tracked wire points (the `tracking_2d` observable)."""
-        return self._tracked.copy()
+        return self._frames[-1].ravel().copy()
 
     def history(self, physics=None) -> np.ndarray:
         """The tracked points of the `HISTORY_STEPS` measurements before the last, newest
         first, relative to the last one's tip (the `tracking_2d_history` observable)."""
-        if not self._history:
-            return np.zeros(TRACKING_2D_HISTORY_SIZE)
-        earlier = self._history[:-1][::-1] or [self._history[0]]
-        earlier = earlier + [earlier[-1]] * (HISTORY_STEPS - len(earlier))
-        tip = self._history[-1][0]
-        return np.concatenate([(points - tip).ravel() for points in earlier])
+        *earlier, last = self._frames
+        return (np.stack(earlier[::-1]) - last[0]).ravel()
 
     def roadmap(self, physics=None) -> np.ndarray:
         """The last measurement's projected roadmap (the `roadmap_2d` observable)."""
@@ -133,8 +132,7 @@ class ImageTracker:
             return (line.at(s_m) + self._offset - origin) @ to_image.T
 
         ahead = np.array([projected(s + d * MM) for d in AHEAD_MM]) - tip
-        self._tracked = tracked.ravel()
-        self._history = [*self._history[-HISTORY_STEPS:], tracked]
+        self._frames.extend([tracked] * (1 if self._frames else self._frames.maxlen))
         self._roadmap = np.concatenate(
             [
                 ahead.ravel(),
