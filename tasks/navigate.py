@@ -424,7 +424,7 @@ class Navigate(composer.Task):
 
     def _observes_roadmap(self) -> bool:
         observables = self._task_observables
-        return observables["roadmap"].enabled or observables["target_depth_time"].enabled
+        return any(observables[name].enabled for name in ("roadmap", "target_depth_time", "wrong_branch_heading"))
 
     def _track_roadmap(self, physics) -> None:
         """One roadmap measurement of the step's end state; counts a step at the target's

@@ -71,6 +71,9 @@ def task_observables(
         "target_depth_time": observable.Generic(
             lambda physics: np.array([min(task.steps_at_target_depth, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
         ),
+        # The heading of a wrong branch entered before whose ostium the tracked tip is passing,
+        # flagged, in the tip's frame (tasks/roadmap.py), as the task measured it.
+        "wrong_branch_heading": observable.Generic(roadmap.wrong_branch_heading),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         # The registered roadmap overlaid on the fluoroscope's view: the lumen's silhouette
         # and the target, both off by the episode's registration error.

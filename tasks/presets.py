@@ -22,6 +22,7 @@ PRESET_OBSERVABLES = (
     "roadmap",
     "robot_state",
     "target_depth_time",
+    "wrong_branch_heading",
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",

@@ -37,13 +37,21 @@ full-speed insertion step of it along the roadmap), over `DEPTH_CLOCK_STEPS`, at
 The task keeps the count (`Navigate.steps_at_target_depth`). With it, the scripted
 expert's end game (strokes past the target and back, timed by its own count of the same
 steps) becomes a function of what the policy observes.
+
+`wrong_branch_heading` (preset `roadmap_memory`, experimental) is the other memory the expert
+acts on: the wrong branches the tracked tip has entered (it lay more than `LOST_MARGIN_M`
+outside the roadmap's tube, inside another vessel of the registered segmentation). While the
+tip passes the ostium of one of them (within two lumen radii along the roadmap), it is
+[1, that branch's heading from its ostium in the tip's frame (3, a unit vector)]; otherwise
+zeros. The expert turns its aim away from the same heading there
+(`cathsim_dmc.anatomy.paths.WrongBranchMemory`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath, component_across
+from cathsim_dmc.anatomy.paths import CenterlinePath, CenterlineTree, WrongBranchMemory, component_across
 
 AHEAD_MM = (0, 4, 8, 12, 16, 24, 32, 48)
 ROADMAP_SIZE = 3 * len(AHEAD_MM) + 3 + 3 + 2 + 1 + 1
@@ -52,6 +60,10 @@ CM = 0.01
 TRACK_BACK_M, TRACK_AHEAD_M = 0.01, 0.03
 # target_depth_time's unit: control steps (the expert's end game takes about 50 in a BCA).
 DEPTH_CLOCK_STEPS = 100
+# wrong_branch_heading: the tip counts as lost this far outside the roadmap's tube (the
+# expert's lost_margin_m, cathsim_dmc/control/expert.py).
+LOST_MARGIN_M = 2e-3
+WRONG_BRANCH_HEADING_SIZE = 4
 
 
 class RoadmapTracker:
@@ -68,6 +80,9 @@ class RoadmapTracker:
         self._offset = np.zeros(3)
         self._s = None
         self._features = np.zeros(ROADMAP_SIZE)  # before the first episode: a placeholder of the right shape
+        self._tree = None  # the registered vessel tree, built when first needed
+        self._wrong_branches = None
+        self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_SIZE)
 
     def start(self, random_state) -> None:
         """A new episode: a new registration offset; the nearest point is searched afresh
@@ -77,6 +92,8 @@ class RoadmapTracker:
             random_state.normal(0.0, self.registration_error_m, 3) if self.registration_error_m > 0 else np.zeros(3)
         )
         self._s = None
+        self._wrong_branches = None  # forgotten: a new episode
+        self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_SIZE)
 
     def measure(self, physics) -> None:
         """A new tracking measurement of the current state (its own noise), kept as `features`."""
@@ -85,6 +102,10 @@ class RoadmapTracker:
     def features(self, physics=None) -> np.ndarray:
         """The last measurement's roadmap features (the `roadmap` observable)."""
         return self._features.copy()
+
+    def wrong_branch_heading(self, physics=None) -> np.ndarray:
+        """The last measurement's `wrong_branch_heading` (module docstring)."""
+        return self._wrong_branch_heading.copy()
 
     @property
     def registration_offset_m(self) -> np.ndarray:
@@ -119,6 +140,7 @@ class RoadmapTracker:
         else:
             s, outside = line.locate(tip, self._s - TRACK_BACK_M, self._s + TRACK_AHEAD_M)
         self._s = s
+        self._wrong_branch_heading = self._remember_wrong_branches(tip, s, outside, frame)
         end = line.length_m
         # Past the target the roadmap runs on along the branch (the line's extension): near
         # the target the points still show the branch's axis, which the last turn needs.
@@ -132,3 +154,17 @@ class RoadmapTracker:
             [outside / CM],
         ]
         return np.concatenate([np.asarray(p, dtype=float).ravel() for p in parts])
+
+    def _remember_wrong_branches(self, tip, s, outside, frame) -> np.ndarray:
+        """Note the branch the tracked tip is lost in; the heading of a remembered one whose
+        ostium the tip is passing, in the tip's frame, flagged (`wrong_branch_heading`)."""
+        if self._wrong_branches is None:
+            if self._tree is None:
+                self._tree = CenterlineTree.from_asset(self._task.aorta.asset)
+            self._wrong_branches = WrongBranchMemory(self._tree, self._task.target_name)
+        if outside > LOST_MARGIN_M:
+            self._wrong_branches.note(tip)
+        heading = self._wrong_branches.heading_near(s, self._line.radius_at(s))
+        if heading is None:
+            return np.zeros(WRONG_BRANCH_HEADING_SIZE)
+        return np.concatenate([[1.0], frame @ heading])

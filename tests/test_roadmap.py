@@ -153,6 +153,48 @@ def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
     plain.close()
 
 
+def test_the_wrong_branch_heading_is_the_one_the_expert_turns_away_from():
+    """obs=roadmap_memory: at every step of an LCCA episode in which the wire enters the LSA
+    and comes back past its ostium, wrong_branch_heading is flagged exactly when the expert
+    turns its aim away from a branch it remembers, and holds that branch's heading in the
+    tip's frame; the roadmap beside it is the roadmap preset's."""
+    from cathsim_dmc.control.expert import CenterlineExpert
+
+    env = CathSimEnv(task="lcca", aorta="type2", obs="roadmap_memory")
+    plain = CathSimEnv(task="lcca", aorta="type2", obs="roadmap")
+    expert = CenterlineExpert()
+    obs, _ = env.reset(seed=0)
+    plain_obs, _ = plain.reset(seed=0)
+    flagged = []
+    for _ in range(300):
+        assert set(obs) == {"roadmap", "robot_state", "wrong_branch_heading"}
+        np.testing.assert_array_equal(obs["roadmap"], plain_obs["roadmap"])
+        action = expert(obs, env)
+        away = expert._avoid.heading_near(expert._s, expert._line.radius_at(expert._s))
+        memory = obs["wrong_branch_heading"].astype(float)
+        flagged.append(memory[0] == 1.0)
+        if away is None:
+            np.testing.assert_array_equal(memory, np.zeros(4))
+        else:
+            base_site = env.physics.bind(env.task.guidewire.tip_base_site)
+            shaft = base_site.xmat.reshape(3, 3)[:, 2]
+            bend = env.task.tip_position_m(env.physics) - base_site.xpos
+            x = bend - (bend @ shaft) * shaft
+            x /= np.linalg.norm(x)
+            frame = np.stack([x, np.cross(shaft, x), shaft])
+            np.testing.assert_allclose(memory, np.concatenate([[1.0], frame @ away]), atol=1e-6)
+        obs, _, terminated, truncated, _ = env.step(action)
+        plain_obs, *_ = plain.step(action)
+        if terminated or truncated:
+            break
+    assert any(flagged) and not flagged[0]  # remembered only after the wire has been in a branch
+    # A reset forgets the branches: the next episode starts unflagged.
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs["wrong_branch_heading"], np.zeros(4))
+    env.close()
+    plain.close()
+
+
 def test_a_step_has_one_roadmap_measurement_however_often_it_is_read():
     """The task measures the roadmap at the end of each step (its noise drawn then); the
     observable reads that measurement, so a second read returns the step's observation."""

@@ -196,6 +196,42 @@ class CenterlineTree:
         return float(along + max(depth, 0.0))
 
 
+class WrongBranchMemory:
+    """The wrong branches a tip has entered on its way to `target`, and which way each heads.
+
+    `note(tip_m)`, called while the tip is lost (outside the tube of the path to the
+    target), remembers the branch whose tube the tip is in (once per branch): the arc length
+    along the target's path where the branch leaves it and the branch's heading from its
+    ostium (over two of its lumen radii). `heading_near(s_m, radius_m)` is the heading of a
+    remembered branch whose ostium lies within two lumen radii of arc length `s_m`, or None.
+    The scripted expert turns its aim away from that heading; the `wrong_branch_heading`
+    observable shows it (tasks/roadmap.py).
+    """
+
+    def __init__(self, tree: CenterlineTree, target: str):
+        self._tree, self._target = tree, target
+        self._branches = {}  # name -> (arc length on the target's path where it leaves, unit heading)
+
+    def __len__(self) -> int:
+        return len(self._branches)
+
+    def note(self, tip_m) -> None:
+        name, _, depth = self._tree.locate(tip_m, prefer=self._target)
+        if name == self._target or name in self._branches or depth > 0:
+            return
+        other = self._tree.lines[name]
+        s_leave = self._tree.junction_arclength_m(self._target, name)
+        s_other = self._tree.junction_arclength_m(name, self._target)
+        heading = other.at(s_other + 2 * other.radius_at(s_other)) - other.at(s_other)
+        self._branches[name] = (s_leave, heading / max(np.linalg.norm(heading), 1e-12))
+
+    def heading_near(self, s_m: float, radius_m: float):
+        for s_leave, heading in self._branches.values():
+            if s_leave - 2 * radius_m <= s_m <= s_leave + 2 * radius_m:
+                return heading
+        return None
+
+
 def signed_angle_rad(a, b, axis) -> float:
     """Angle from a to b about axis, in radians; 0 when either is degenerate."""
     if np.linalg.norm(a) < 1e-9 or np.linalg.norm(b) < 1e-9:

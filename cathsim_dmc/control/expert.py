@@ -54,7 +54,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath, CenterlineTree, component_across, signed_angle_rad
+from cathsim_dmc.anatomy.paths import (
+    CenterlinePath,
+    CenterlineTree,
+    WrongBranchMemory,
+    component_across,
+    signed_angle_rad,
+)
 
 
 class CenterlineExpert:
@@ -121,7 +127,7 @@ class CenterlineExpert:
         task = env.task
         self._line = CenterlinePath(*task.aorta.asset.centerlines[task.target_name])
         self._tree = CenterlineTree.from_asset(task.aorta.asset)
-        self._avoid = {}  # wrong branch entered -> (arc length on the path where it leaves, its heading)
+        self._avoid = WrongBranchMemory(self._tree, task.target_name)  # the wrong branches entered
         self._s = self._line.locate(task.tip_position_m(env.physics))[0]
         self._best_s = self._s
         self._since_progress = 0
@@ -223,7 +229,7 @@ class CenterlineExpert:
         lost = outside > self.lost_margin_m
         self._lost_steps = self._lost_steps + 1 if lost else 0
         if lost:
-            self._note_wrong_branch(tip, task.target_name)
+            self._avoid.note(tip)
         if remaining < self.min_progress_m:
             self._since_progress = 0  # at the target's depth: only the aim is left to fix
         if self._retracting == 0 and (lost or self._since_progress >= self.stall_steps):
@@ -239,7 +245,7 @@ class CenterlineExpert:
         # look-ahead point (relative to the tip base, across the shaft).
         # Near the target, aim at the target itself: the last look-ahead would overshoot.
         angle, off_axis = line.aim_error(tip, base, shaft, s, self.lookahead_radii * radius)
-        away = self._away_from_wrong_branch(s, radius)
+        away = self._avoid.heading_near(s, radius)
         if away is not None:
             aim_point = line.at(min(s + self.lookahead_radii * radius, line.length_m))
             aim = component_across(aim_point - base, shaft)
@@ -275,26 +281,6 @@ class CenterlineExpert:
         else:
             insertion = 0.0
         return np.array([insertion, rotation], dtype=np.float32)
-
-    def _note_wrong_branch(self, tip, target):
-        """Remember the branch the tip is lost in (if it is in one): where it leaves the path
-        to the target and which way it heads from there."""
-        name, _, depth = self._tree.locate(tip, prefer=target)
-        if name == target or name in self._avoid or depth > 0:
-            return
-        other = self._tree.lines[name]
-        s_leave = self._tree.junction_arclength_m(target, name)
-        s_other = self._tree.junction_arclength_m(name, target)
-        heading = other.at(s_other + 2 * other.radius_at(s_other)) - other.at(s_other)
-        self._avoid[name] = (s_leave, heading / max(np.linalg.norm(heading), 1e-12))
-
-    def _away_from_wrong_branch(self, s, radius):
-        """The heading of a wrong branch entered before whose ostium the tip now is (within
-        two lumen radii either side), or None."""
-        for s_leave, heading in self._avoid.values():
-            if s_leave - 2 * radius <= s <= s_leave + 2 * radius:
-                return heading
-        return None
 
     def _end_game(self, tip, shaft, bend, remaining):
         """At the target's depth but not within reach: the tip rests on the branch wall.
