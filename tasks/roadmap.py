@@ -38,7 +38,7 @@ The task keeps the count (`Navigate.steps_at_target_depth`). With it, the script
 expert's end game (strokes past the target and back, timed by its own count of the same
 steps) becomes a function of what the policy observes.
 
-`wrong_branch_heading` (preset `roadmap_memory`, experimental) is the other memory the expert
+`wrong_branch_heading` (preset `roadmap_memory`, the LCCA navigator's) is the other memory the expert
 acts on: the wrong branches the tracked tip has entered (it lay more than `LOST_MARGIN_M`
 outside the roadmap's tube, inside another vessel of the registered segmentation). While the
 tip passes the ostium of one of them (within two lumen radii along the roadmap), it is
