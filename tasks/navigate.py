@@ -22,6 +22,7 @@ from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 from cathsim_dmc.tasks.rewards import NavigationReward
+from cathsim_dmc.tasks.roadmap import CATHETER_STALL_STEPS, END_GAME_STEPS, STALL_NEAR_M, STALL_PROGRESS_M
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
@@ -239,6 +240,9 @@ class Navigate(composer.Task):
 
         self._step_count = 0
         self._steps_at_target_depth = 0
+        self._steps_stalled_near_target = 0
+        self._closest_tracked_m = np.inf
+        self._catheter_called = False
         self._success = False
         self._diverged = False
         self._escaped = False
@@ -362,6 +366,9 @@ class Navigate(composer.Task):
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
         self._roadmap.start(random_state)
         self._steps_at_target_depth = 0
+        self._steps_stalled_near_target = 0
+        self._closest_tracked_m = np.inf
+        self._catheter_called = False
         if self._observes_roadmap():
             # The tip is first located on the whole roadmap (this fix starts the depth clock),
             # then tracked from there: the `roadmap` features of the reset are the second fix,
@@ -424,14 +431,25 @@ class Navigate(composer.Task):
 
     def _observes_roadmap(self) -> bool:
         observables = self._task_observables
-        return any(observables[name].enabled for name in ("roadmap", "target_depth_time", "wrong_branch_heading"))
+        watched = ("roadmap", "target_depth_time", "wrong_branch_heading", "catheter_called")
+        return any(observables[name].enabled for name in watched)
 
     def _track_roadmap(self, physics) -> None:
         """One roadmap measurement of the step's end state; counts a step at the target's
-        depth (the tracked tip within one full-speed insertion step of it along the roadmap)."""
+        depth (the tracked tip within one full-speed insertion step of it along the roadmap)
+        and a step stalled near the target, and calls the catheter by the expert's rule."""
         self._roadmap.measure(physics)
         at_depth = self._roadmap.remaining_m < self._progress_step_m()
         self._steps_at_target_depth = self._steps_at_target_depth + 1 if at_depth else 0
+        distance_m = self._roadmap.target_distance_m
+        if distance_m < self._closest_tracked_m - STALL_PROGRESS_M:
+            self._closest_tracked_m, self._steps_stalled_near_target = distance_m, 0
+        elif distance_m < STALL_NEAR_M:
+            self._steps_stalled_near_target += 1
+        stalled = self._steps_stalled_near_target >= CATHETER_STALL_STEPS
+        ended = self._steps_at_target_depth >= END_GAME_STEPS
+        if self._catheter_drive is not None and (stalled or ended):
+            self._catheter_called = True
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -559,6 +577,12 @@ class Navigate(composer.Task):
         """How many control steps in a row the tracked tip has been at the target's depth
         (`target_depth_time`'s count; counted while `roadmap` or `target_depth_time` is observed)."""
         return self._steps_at_target_depth
+
+    @property
+    def catheter_called(self) -> bool:
+        """Whether the expert's rule for bringing the catheter up has fired on the tracked tip
+        this episode (`catheter_called`; with a catheter, while a roadmap observable is on)."""
+        return self._catheter_called
 
     def step_info(self, physics) -> StepInfo:
         contacts = self.contact_forces(physics)

@@ -74,6 +74,8 @@ def task_observables(
         # The heading of a wrong branch entered before whose ostium the tracked tip is passing,
         # flagged, in the tip's frame (tasks/roadmap.py), as the task measured it.
         "wrong_branch_heading": observable.Generic(roadmap.wrong_branch_heading),
+        # 1 once the expert's catheter rule has fired on the tracked tip this episode (the task's flag).
+        "catheter_called": observable.Generic(lambda physics: np.array([float(task.catheter_called)])),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         # The registered roadmap overlaid on the fluoroscope's view: the lumen's silhouette
         # and the target, both off by the episode's registration error.

@@ -23,6 +23,7 @@ PRESET_OBSERVABLES = (
     "robot_state",
     "target_depth_time",
     "wrong_branch_heading",
+    "catheter_called",
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",

@@ -45,6 +45,14 @@ tip passes the ostium of one of them (within two lumen radii along the roadmap),
 [1, that branch's heading from its ostium in the tip's frame (3, a unit vector)]; otherwise
 zeros. The expert turns its aim away from the same heading there
 (`cathsim_dmc.anatomy.paths.WrongBranchMemory`).
+
+`catheter_called` (with a catheter; preset `roadmap_memory_catheter`, experimental) is 1 from
+the step the expert's rule for bringing the catheter up has fired on the tracked tip, for the
+rest of the episode, else 0: the tip has stayed within `STALL_NEAR_M` of the target for
+`CATHETER_STALL_STEPS` steps without coming `STALL_PROGRESS_M` closer than its closest
+approach, or the depth clock has run through the expert's end game (`END_GAME_STEPS`: 3
+settling steps, then strokes of 8, 16 and 24 quarter-radius steps). The expert keeps the
+catheter up from then on; without the flag, whether it is up is hidden state.
 """
 
 from __future__ import annotations
@@ -63,6 +71,10 @@ DEPTH_CLOCK_STEPS = 100
 # wrong_branch_heading: the tip counts as lost this far outside the roadmap's tube (the
 # expert's lost_margin_m, cathsim_dmc/control/expert.py).
 LOST_MARGIN_M = 2e-3
+# catheter_called: the expert's catheter rule (cathsim_dmc/control/expert.py: catheter_bring_up_m,
+# min_progress_m, catheter_stall_steps; the end game's settle_steps and stroke schedule).
+STALL_NEAR_M, STALL_PROGRESS_M, CATHETER_STALL_STEPS = 0.030, 1e-3, 60
+END_GAME_STEPS = 3 + 1 + 2 * (4 + 8 + 12)
 WRONG_BRANCH_HEADING_SIZE = 4
 
 
@@ -94,6 +106,7 @@ class RoadmapTracker:
         self._s = None
         self._wrong_branches = None  # forgotten: a new episode
         self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_SIZE)
+        self._target_distance_m = np.inf
 
     def measure(self, physics) -> None:
         """A new tracking measurement of the current state (its own noise), kept as `features`."""
@@ -111,6 +124,11 @@ class RoadmapTracker:
     def registration_offset_m(self) -> np.ndarray:
         """This episode's registration error: the roadmap lies this world vector off (metres)."""
         return self._offset.copy()
+
+    @property
+    def target_distance_m(self) -> float:
+        """The last measurement's distance from the tracked tip to the roadmap's target (m)."""
+        return self._target_distance_m
 
     @property
     def remaining_m(self) -> float:
@@ -142,6 +160,7 @@ class RoadmapTracker:
         self._s = s
         self._wrong_branch_heading = self._remember_wrong_branches(tip, s, outside, frame)
         end = line.length_m
+        self._target_distance_m = float(np.linalg.norm(line.at(end) - tip))
         # Past the target the roadmap runs on along the branch (the line's extension): near
         # the target the points still show the branch's axis, which the last turn needs.
         ahead = np.array([line.at(s + d * 1e-3) for d in AHEAD_MM]) - tip

@@ -29,13 +29,14 @@ ALLOWED = {
 # What the image does not show: the 3-D tip (roadmap, tip_position), depth along the view
 # axis (roadmap's tip frame), wall and drive forces, the wire's bending angles and rates
 # (joint_pos, joint_vel), its slack, the simulator's own wire segmentation, the depth clock and
-# the 3-D wrong-branch memory.
+# the 3-D wrong-branch memory and catheter flag.
 PRIVILEGED = {
     "joint_pos",
     "joint_vel",
     "roadmap",
     "target_depth_time",
     "wrong_branch_heading",
+    "catheter_called",
     "tip_position",
     "contact_force",
     "wire_slack",
