@@ -172,3 +172,35 @@ def test_the_built_in_wire_policies_leave_the_catheter_parked():
     assert BUILTIN_POLICIES["random"](seed=1)(observation, env).shape == (3,)  # random drives the catheter too
     plain = CathSimEnv("bca", "type1", "internal")
     assert BUILTIN_POLICIES["forward"]()(observation, plain).shape == (2,)
+
+
+def _catheter_flags(task, aorta, seed, catheter="angled_5f"):
+    """(the observed catheter_called, the expert's uses_catheter) at each step of an expert episode."""
+    env = CathSimEnv(task, aorta, "roadmap_memory_catheter", catheter=catheter)
+    expert = CenterlineExpert()
+    observation, _ = env.reset(seed=seed)
+    flags = []
+    try:
+        for _ in range(300):
+            action = expert(observation, env)
+            flags.append((bool(observation["catheter_called"][0]), getattr(expert, "uses_catheter", False)))
+            observation, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return flags
+
+
+def test_catheter_called_is_raised_when_the_expert_brings_the_catheter_up(reverse_angle_lcca):
+    """obs=roadmap_memory_catheter: catheter_called is the expert's own rule on the tracked tip.
+    Where the wire stalls short of a reverse-angle LCCA it is raised at the step the expert
+    brings the catheter up and stays raised; where the BCA's end game runs out (type III
+    oblique), within a few steps of the expert; without a catheter, never."""
+    observed, expert = zip(*_catheter_flags("lcca", reverse_angle_lcca, 0))
+    assert any(expert) and observed == expert
+    observed, expert = zip(*_catheter_flags("bca", "type3_oblique", 1))
+    raised, brought_up = observed.index(True), expert.index(True)
+    assert all(observed[raised:]) and all(expert[brought_up:])
+    assert 0 <= brought_up - raised <= 3
+    assert not any(observed for observed, _ in _catheter_flags("lcca", reverse_angle_lcca, 0, catheter=None))
