@@ -95,6 +95,7 @@ class RoadmapTracker:
         self._tree = None  # the registered vessel tree, built when first needed
         self._wrong_branches = None
         self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_SIZE)
+        self._target_distance_m = np.inf
 
     def start(self, random_state) -> None:
         """A new episode: a new registration offset; the nearest point is searched afresh
