@@ -579,6 +579,12 @@ class Navigate(composer.Task):
         return self._steps_at_target_depth
 
     @property
+    def catheter_rate(self) -> float:
+        """The catheter carriage's speed over the last control step, over its maximum (its
+        encoder; 0 without a catheter)."""
+        return 0.0 if self._catheter_drive is None else self._catheter_drive.rate
+
+    @property
     def catheter_called(self) -> bool:
         """Whether the expert's rule for bringing the catheter up has fired on the tracked tip
         this episode (`catheter_called`; with a catheter, while a roadmap observable is on)."""

@@ -76,6 +76,8 @@ def task_observables(
         "wrong_branch_heading": observable.Generic(roadmap.wrong_branch_heading),
         # 1 once the expert's catheter rule has fired on the tracked tip this episode (the task's flag).
         "catheter_called": observable.Generic(lambda physics: np.array([float(task.catheter_called)])),
+        # The catheter carriage's encoder: its speed over the last control step, over its maximum.
+        "catheter_rate": observable.Generic(lambda physics: np.array([task.catheter_rate])),
         "pixels": observable.Generic(lambda physics: top_view.image(physics, settings.style)),
         # The registered roadmap overlaid on the fluoroscope's view: the lumen's silhouette
         # and the target, both off by the episode's registration error.

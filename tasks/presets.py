@@ -24,6 +24,7 @@ PRESET_OBSERVABLES = (
     "target_depth_time",
     "wrong_branch_heading",
     "catheter_called",
+    "catheter_rate",
     "roadmap_overlay",
     "tracking_2d",
     "roadmap_2d",

@@ -204,3 +204,26 @@ def test_catheter_called_is_raised_when_the_expert_brings_the_catheter_up(revers
     assert all(observed[raised:]) and all(expert[brought_up:])
     assert 0 <= brought_up - raised <= 3
     assert not any(observed for observed, _ in _catheter_flags("lcca", reverse_angle_lcca, 0, catheter=None))
+
+
+def test_the_carriage_rate_is_what_it_moved_over_its_full_speed():
+    """catheter_rate (obs=roadmap_memory_carriage): the commanded speed while the carriage is
+    free, zero where the sheath holds it, the share it moved where the wire's tip stops it."""
+    env = CathSimEnv("lcca", "type1", "roadmap_memory_carriage", catheter="angled_5f")
+    observation, _ = env.reset(seed=0)
+    assert observation["catheter_rate"][0] == 0.0
+    observation, *_ = env.step(np.array([0.0, 0.0, -1.0], np.float32))  # parked: the sheath holds it
+    assert observation["catheter_rate"][0] == 0.0
+    for _ in range(5):
+        observation, *_ = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+    observation, _, _, _, info = env.step(np.array([0.0, 0.0, 0.5], np.float32))
+    assert observation["catheter_rate"][0] == pytest.approx(0.5)
+    step_m = env.task.catheter.max_speed_m_s * env.task.control_timestep
+    rates = []
+    while info["catheter_offset_m"] > 0.0 and len(rates) < 30:  # up to the wire's tip, the wire held
+        offset_m = info["catheter_offset_m"]
+        observation, _, _, _, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))
+        rates.append((float(observation["catheter_rate"][0]), min(1.0, offset_m / step_m)))
+    assert info["catheter_offset_m"] == 0.0 and rates[-1][1] < 1.0  # the last move was cut short
+    np.testing.assert_allclose(*zip(*rates), atol=1e-3)  # the held wire still settles by microns
+    env.close()

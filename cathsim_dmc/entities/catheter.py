@@ -183,11 +183,18 @@ class CatheterDrive:
         self._out_m = 0.0  # the catheter's tip past the sheath's tip, along the wire
         self._offset_m = 0.0
         self._command = 0.0
+        self._rate = 0.0
 
     @property
     def offset_m(self) -> float:
         """How far the catheter's tip lies behind the wire's tip, along the wire, in metres (0: flush)."""
         return self._offset_m
+
+    @property
+    def rate(self) -> float:
+        """The carriage's speed over the last control step as its encoder measures it: the
+        distance it moved over `Catheter.max_speed_m_s` times the step (0 where a limit held it)."""
+        return self._rate
 
     def initialize_episode(self, physics) -> None:
         """Parks the catheter (its tip at the sheath's) and covers the wire accordingly."""
@@ -196,6 +203,7 @@ class CatheterDrive:
             self._model_key = id(physics.model.ptr)
         self._out_m = 0.0
         self._command = 0.0
+        self._rate = 0.0
         self._cover(physics)
 
     def set_command(self, command: float) -> None:
@@ -205,7 +213,10 @@ class CatheterDrive:
     def move(self, physics, duration_s: float) -> None:
         """The carriage's move over a control step of `duration_s` seconds, then the wire covered anew."""
         moved_m = self._command * self.catheter.max_speed_m_s * duration_s
-        self._out_m = float(np.clip(self._out_m + moved_m, 0.0, self._wire_out_of_sheath_m(physics)))
+        out_m = float(np.clip(self._out_m + moved_m, 0.0, self._wire_out_of_sheath_m(physics)))
+        full_m = self.catheter.max_speed_m_s * duration_s
+        self._rate = (out_m - self._out_m) / full_m if full_m > 0 else 0.0
+        self._out_m = out_m
         self._cover(physics)
 
     def _wire_out_of_sheath_m(self, physics) -> float:
