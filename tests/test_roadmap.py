@@ -120,33 +120,42 @@ def test_a_negative_noise_is_refused_in_one_line():
         CathSimEnv(task="bca", aorta="type1", obs="roadmap", tracking_noise_m=-0.001)
 
 
+def _expert_beside_the_roadmap_preset(env, plain, seed=0):
+    """An expert episode in `env`, and `plain` (obs=roadmap, the same task) driven by the
+    same actions beside it: yields (observation, expert) after the expert's action at each
+    step, once the two roadmaps are checked equal."""
+    from cathsim_dmc.control.expert import CenterlineExpert
+
+    expert = CenterlineExpert()
+    obs, _ = env.reset(seed=seed)
+    plain_obs, _ = plain.reset(seed=seed)
+    for _ in range(300):
+        np.testing.assert_array_equal(obs["roadmap"], plain_obs["roadmap"])
+        action = expert(obs, env)
+        yield obs, expert
+        obs, _, terminated, truncated, _ = env.step(action)
+        plain_obs, *_ = plain.step(action)
+        if terminated or truncated:
+            return
+
+
 def test_the_depth_clock_counts_the_steps_the_expert_times_its_end_game_by():
     """obs=roadmap_timed: target_depth_time is the expert's own count of steps at the
     target's depth (until the expert's first retreat, where it starts its count afresh),
     and the roadmap beside it is the roadmap preset's."""
-    from cathsim_dmc.control.expert import CenterlineExpert
     from cathsim_dmc.tasks.roadmap import DEPTH_CLOCK_STEPS
 
     env = CathSimEnv(task="bca", aorta="type3", obs="roadmap_timed")
     plain = CathSimEnv(task="bca", aorta="type3", obs="roadmap")
-    expert = CenterlineExpert()
-    obs, _ = env.reset(seed=0)
-    plain_obs, _ = plain.reset(seed=0)
     clocks = []
-    for _ in range(300):
+    for obs, expert in _expert_beside_the_roadmap_preset(env, plain):
         assert set(obs) == {"roadmap", "robot_state", "target_depth_time"}
-        np.testing.assert_array_equal(obs["roadmap"], plain_obs["roadmap"])
-        action = expert(obs, env)
         if expert._retreat_to is not None:
             break
         clocks.append((round(float(obs["target_depth_time"][0]) * DEPTH_CLOCK_STEPS), expert._at_depth))
         # The count is the task's; reading the observable again neither moves nor changes it.
         again = env.task.observables["target_depth_time"](env.physics)
         assert clocks[-1][0] == env.task.steps_at_target_depth and np.float32(again[0]) == obs["target_depth_time"][0]
-        obs, _, terminated, truncated, _ = env.step(action)
-        plain_obs, *_ = plain.step(action)
-        if terminated or truncated:
-            break
     assert [clock for clock, _ in clocks] == [count for _, count in clocks]
     assert max(clock for clock, _ in clocks) > expert.settle_steps  # the end game was played
     env.close()
@@ -158,18 +167,11 @@ def test_the_wrong_branch_heading_is_the_one_the_expert_turns_away_from():
     and comes back past its ostium, wrong_branch_heading is flagged exactly when the expert
     turns its aim away from a branch it remembers, and holds that branch's heading in the
     tip's frame; the roadmap beside it is the roadmap preset's."""
-    from cathsim_dmc.control.expert import CenterlineExpert
-
     env = CathSimEnv(task="lcca", aorta="type2", obs="roadmap_memory")
     plain = CathSimEnv(task="lcca", aorta="type2", obs="roadmap")
-    expert = CenterlineExpert()
-    obs, _ = env.reset(seed=0)
-    plain_obs, _ = plain.reset(seed=0)
     flagged = []
-    for _ in range(300):
+    for obs, expert in _expert_beside_the_roadmap_preset(env, plain):
         assert set(obs) == {"roadmap", "robot_state", "wrong_branch_heading"}
-        np.testing.assert_array_equal(obs["roadmap"], plain_obs["roadmap"])
-        action = expert(obs, env)
         away = expert._avoid.heading_near(expert._s, expert._line.radius_at(expert._s))
         memory = obs["wrong_branch_heading"].astype(float)
         flagged.append(memory[0] == 1.0)
@@ -183,14 +185,7 @@ def test_the_wrong_branch_heading_is_the_one_the_expert_turns_away_from():
             x /= np.linalg.norm(x)
             frame = np.stack([x, np.cross(shaft, x), shaft])
             np.testing.assert_allclose(memory, np.concatenate([[1.0], frame @ away]), atol=1e-6)
-        obs, _, terminated, truncated, _ = env.step(action)
-        plain_obs, *_ = plain.step(action)
-        if terminated or truncated:
-            break
     assert any(flagged) and not flagged[0]  # remembered only after the wire has been in a branch
-    # A reset forgets the branches: the next episode starts unflagged.
-    obs, _ = env.reset(seed=0)
-    np.testing.assert_array_equal(obs["wrong_branch_heading"], np.zeros(4))
     env.close()
     plain.close()
 
