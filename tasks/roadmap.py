@@ -38,7 +38,7 @@ The task keeps the count (`Navigate.steps_at_target_depth`). With it, the script
 expert's end game (strokes past the target and back, timed by its own count of the same
 steps) becomes a function of what the policy observes.
 
-`wrong_branch_heading` (preset `roadmap_memory`, the LCCA navigator's) is the other memory the expert
+`wrong_branch_heading` (presets `roadmap_memory*`) is the other memory the expert
 acts on: the wrong branches the tracked tip has entered (it lay more than `LOST_MARGIN_M`
 outside the roadmap's tube, inside another vessel of the registered segmentation). While the
 tip passes the ostium of one of them (within two lumen radii along the roadmap), it is
@@ -46,7 +46,7 @@ tip passes the ostium of one of them (within two lumen radii along the roadmap),
 zeros. The expert turns its aim away from the same heading there
 (`cathsim_dmc.anatomy.paths.WrongBranchMemory`).
 
-`catheter_called` (with a catheter; preset `roadmap_memory_catheter`, experimental) is 1 from
+`catheter_called` (with a catheter; preset `roadmap_memory_carriage`) is 1 from
 the step the expert's rule for bringing the catheter up has fired on the tracked tip, for the
 rest of the episode, else 0: the tip has stayed within `STALL_NEAR_M` of the target for
 `CATHETER_STALL_STEPS` steps without coming `STALL_PROGRESS_M` closer than its closest

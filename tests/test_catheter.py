@@ -176,7 +176,7 @@ def test_the_built_in_wire_policies_leave_the_catheter_parked():
 
 def _catheter_flags(task, aorta, seed, catheter="angled_5f"):
     """(the observed catheter_called, the expert's uses_catheter) at each step of an expert episode."""
-    env = CathSimEnv(task, aorta, "roadmap_memory_catheter", catheter=catheter)
+    env = CathSimEnv(task, aorta, "roadmap_memory_carriage", catheter=catheter)
     expert = CenterlineExpert()
     observation, _ = env.reset(seed=seed)
     flags = []
@@ -193,7 +193,7 @@ def _catheter_flags(task, aorta, seed, catheter="angled_5f"):
 
 
 def test_catheter_called_is_raised_when_the_expert_brings_the_catheter_up(reverse_angle_lcca):
-    """obs=roadmap_memory_catheter: catheter_called is the expert's own rule on the tracked tip.
+    """obs=roadmap_memory_carriage: catheter_called is the expert's own rule on the tracked tip.
     Where the wire stalls short of a reverse-angle LCCA it is raised at the step the expert
     brings the catheter up and stays raised; where the BCA's end game runs out (type III
     oblique), within a few steps of the expert; without a catheter, never."""
