@@ -260,6 +260,9 @@ PRESET_CARD = {
     "roadmap": "the registered roadmap around the tracked tip, in the tip's frame, and the robot's encoders",
     "roadmap_timed": "the registered roadmap around the tracked tip, in the tip's frame, the robot's encoders, "
     "and the steps the tip has stayed at the target's depth",
+    "roadmap_memory_carriage": "the registered roadmap around the tracked tip, in the tip's frame, the robot's "
+    "encoders, the heading of a wrong branch the tip has entered while it passes its ostium, whether the catheter "
+    "has been called, and the carriage's speed",
 }
 
 
