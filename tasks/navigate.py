@@ -364,6 +364,7 @@ class Navigate(composer.Task):
         measurements.forget()
         measurements.set_start(physics, insertion)
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
+        self._roadmap.remembers_wrong_branches = self._task_observables["wrong_branch_heading"].enabled
         self._roadmap.start(random_state)
         self._steps_at_target_depth = 0
         self._steps_stalled_near_target = 0

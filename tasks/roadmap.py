@@ -94,6 +94,8 @@ class RoadmapTracker:
         self._features = np.zeros(ROADMAP_SIZE)  # before the first episode: a placeholder of the right shape
         self._tree = None  # the registered vessel tree, built when first needed
         self._wrong_branches = None
+        # Kept only while `wrong_branch_heading` is observed (the task sets this at a reset).
+        self.remembers_wrong_branches = False
         self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_SIZE)
         self._target_distance_m = np.inf
 
@@ -178,6 +180,8 @@ class RoadmapTracker:
     def _remember_wrong_branches(self, tip, s, outside, frame) -> np.ndarray:
         """Note the branch the tracked tip is lost in; the heading of a remembered one whose
         ostium the tip is passing, in the tip's frame, flagged (`wrong_branch_heading`)."""
+        if not self.remembers_wrong_branches:
+            return np.zeros(WRONG_BRANCH_HEADING_SIZE)
         if self._wrong_branches is None:
             if self._tree is None:
                 self._tree = CenterlineTree.from_asset(self._task.aorta.asset)

@@ -212,9 +212,6 @@ class WrongBranchMemory:
         self._tree, self._target = tree, target
         self._branches = {}  # name -> (arc length on the target's path where it leaves, unit heading)
 
-    def __len__(self) -> int:
-        return len(self._branches)
-
     def note(self, tip_m) -> None:
         name, _, depth = self._tree.locate(tip_m, prefer=self._target)
         if name == self._target or name in self._branches or depth > 0:
