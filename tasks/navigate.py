@@ -22,7 +22,7 @@ from cathsim_dmc.tasks.measurements import StepInfo, WireMeasurements
 from cathsim_dmc.tasks.observations import check_extra_observations, task_observables
 from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
 from cathsim_dmc.tasks.rewards import NavigationReward
-from cathsim_dmc.tasks.roadmap import CATHETER_STALL_STEPS, END_GAME_STEPS, STALL_NEAR_M, STALL_PROGRESS_M
+from cathsim_dmc.tasks.roadmap import TargetClocks
 from cathsim_dmc.tasks.scene import NavigationScene, build_scene
 
 CONTROL_TIMESTEP_S = 0.1  # one step moves the wire up to 4 mm at 40 mm/s
@@ -239,10 +239,9 @@ class Navigate(composer.Task):
         self._carm_view_deg = (float(observations.lao_deg), 0.0)
 
         self._step_count = 0
-        self._steps_at_target_depth = 0
-        self._steps_stalled_near_target = 0
-        self._closest_tracked_m = np.inf
-        self._catheter_called = False
+        # The depth clock and the catheter's call, from the 3-D tracker and from the image tracker.
+        self._clocks = TargetClocks(with_catheter=catheter is not None)
+        self._clocks_2d = TargetClocks(with_catheter=catheter is not None)
         self._success = False
         self._diverged = False
         self._escaped = False
@@ -366,10 +365,8 @@ class Navigate(composer.Task):
         self._reward_distance_m = self._previous_reward_distance_m = self.reward_distance_m(physics)
         self._roadmap.remembers_wrong_branches = self._task_observables["wrong_branch_heading"].enabled
         self._roadmap.start(random_state)
-        self._steps_at_target_depth = 0
-        self._steps_stalled_near_target = 0
-        self._closest_tracked_m = np.inf
-        self._catheter_called = False
+        self._clocks.start()
+        self._clocks_2d.start()
         if self._observes_roadmap():
             # The tip is first located on the whole roadmap (this fix starts the depth clock),
             # then tracked from there: the `roadmap` features of the reset are the second fix,
@@ -378,8 +375,9 @@ class Navigate(composer.Task):
             if self._task_observables["roadmap"].enabled:
                 self._roadmap.measure(physics)
         if self._observes_image_plane():
+            self._image_tracker.remembers_wrong_branches = self._task_observables["wrong_branch_heading_2d"].enabled
             self._image_tracker.start(random_state, self._roadmap.registration_offset_m)
-            self._image_tracker.measure(physics)
+            self._track_image(physics)
 
     def _draw_view(self, physics, random_state) -> None:
         """The episode's C-arm view, drawn when the settings give a range (the camera is
@@ -404,7 +402,14 @@ class Navigate(composer.Task):
 
     def _observes_image_plane(self) -> bool:
         observables = self._task_observables
-        return any(observables[name].enabled for name in ("tracking_2d", "roadmap_2d", "tracking_2d_history"))
+        watched = ("tracking_2d", "roadmap_2d", "tracking_2d_history", "wrong_branch_heading_2d", "catheter_called_2d")
+        return any(observables[name].enabled for name in watched)
+
+    def _track_image(self, physics) -> None:
+        """One image-tracker measurement of the step's end state, and its clocks."""
+        tracker = self._image_tracker
+        tracker.measure(physics)
+        self._clocks_2d.update(tracker.remaining_m, tracker.target_distance_m, self._progress_step_m())
 
     def before_step(self, physics, action, random_state):
         self._robot.apply_action(physics, action[:2])
@@ -428,7 +433,7 @@ class Navigate(composer.Task):
         if self._observes_roadmap():
             self._track_roadmap(physics)
         if self._observes_image_plane():
-            self._image_tracker.measure(physics)
+            self._track_image(physics)
 
     def _observes_roadmap(self) -> bool:
         observables = self._task_observables
@@ -440,17 +445,7 @@ class Navigate(composer.Task):
         depth (the tracked tip within one full-speed insertion step of it along the roadmap)
         and a step stalled near the target, and calls the catheter by the expert's rule."""
         self._roadmap.measure(physics)
-        at_depth = self._roadmap.remaining_m < self._progress_step_m()
-        self._steps_at_target_depth = self._steps_at_target_depth + 1 if at_depth else 0
-        distance_m = self._roadmap.target_distance_m
-        if distance_m < self._closest_tracked_m - STALL_PROGRESS_M:
-            self._closest_tracked_m, self._steps_stalled_near_target = distance_m, 0
-        elif distance_m < STALL_NEAR_M:
-            self._steps_stalled_near_target += 1
-        stalled = self._steps_stalled_near_target >= CATHETER_STALL_STEPS
-        ended = self._steps_at_target_depth >= END_GAME_STEPS
-        if self._catheter_drive is not None and (stalled or ended):
-            self._catheter_called = True
+        self._clocks.update(self._roadmap.remaining_m, self._roadmap.target_distance_m, self._progress_step_m())
 
     def action_spec(self, physics):
         return dm_env.specs.BoundedArray(
@@ -577,7 +572,7 @@ class Navigate(composer.Task):
     def steps_at_target_depth(self) -> int:
         """How many control steps in a row the tracked tip has been at the target's depth
         (`target_depth_time`'s count; counted while `roadmap` or `target_depth_time` is observed)."""
-        return self._steps_at_target_depth
+        return self._clocks.steps_at_depth
 
     @property
     def catheter_rate(self) -> float:
@@ -589,7 +584,13 @@ class Navigate(composer.Task):
     def catheter_called(self) -> bool:
         """Whether the expert's rule for bringing the catheter up has fired on the tracked tip
         this episode (`catheter_called`; with a catheter, while a roadmap observable is on)."""
-        return self._catheter_called
+        return self._clocks.called
+
+    @property
+    def catheter_called_2d(self) -> bool:
+        """`catheter_called` kept from the image tracker's readings (`catheter_called_2d`;
+        while an image-plane observable is on)."""
+        return self._clocks_2d.called
 
     def step_info(self, physics) -> StepInfo:
         contacts = self.contact_forces(physics)

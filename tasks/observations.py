@@ -91,6 +91,10 @@ def task_observables(
         "tracking_2d": observable.Generic(image_tracker.tracked),
         "roadmap_2d": observable.Generic(image_tracker.roadmap),
         "tracking_2d_history": observable.Generic(image_tracker.history),
+        # wrong_branch_heading and catheter_called kept from the image tracker's readings
+        # instead of the 3-D tip's (the branch's heading in image coordinates).
+        "wrong_branch_heading_2d": observable.Generic(image_tracker.wrong_branch_heading),
+        "catheter_called_2d": observable.Generic(lambda physics: np.array([float(task.catheter_called_2d)])),
         # The C-arm's angles as it reports them: LAO (negative: RAO) and cranial (negative: caudal), radians.
         "carm_view": observable.Generic(lambda physics: np.radians(np.asarray(task.carm_view_deg, dtype=float))),
         "guidewire_mask": observable.Generic(top_view.mask),

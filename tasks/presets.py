@@ -29,6 +29,8 @@ PRESET_OBSERVABLES = (
     "tracking_2d",
     "roadmap_2d",
     "tracking_2d_history",
+    "wrong_branch_heading_2d",
+    "catheter_called_2d",
     "carm_view",
 )
 # Options a preset file may set (besides name and observables).

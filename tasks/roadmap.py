@@ -192,3 +192,37 @@ class RoadmapTracker:
         if heading is None:
             return np.zeros(WRONG_BRANCH_HEADING_SIZE)
         return np.concatenate([[1.0], frame @ heading])
+
+
+class TargetClocks:
+    """The depth clock and the catheter's call, kept from one tracker's readings over an
+    episode: `start` at a reset, `update` once per measurement.
+
+    `steps_at_depth` counts the measurements in a row with the tip within one full-speed
+    insertion step of the target's depth along the roadmap (`target_depth_time`); `called`
+    turns on, with a catheter, when the expert's catheter rule fires on these readings
+    (module docstring, `catheter_called`) and stays on until `start`.
+    """
+
+    def __init__(self, with_catheter: bool):
+        self._with_catheter = bool(with_catheter)
+        self.start()
+
+    def start(self) -> None:
+        self.steps_at_depth = 0
+        self.called = False
+        self._steps_stalled = 0
+        self._closest_m = np.inf
+
+    def update(self, remaining_m: float, target_distance_m: float, insertion_step_m: float) -> None:
+        """One measurement: the length left along the roadmap to the target, the distance to
+        it, and one full-speed insertion step (all metres)."""
+        self.steps_at_depth = self.steps_at_depth + 1 if remaining_m < insertion_step_m else 0
+        if target_distance_m < self._closest_m - STALL_PROGRESS_M:
+            self._closest_m, self._steps_stalled = target_distance_m, 0
+        elif target_distance_m < STALL_NEAR_M:
+            self._steps_stalled += 1
+        stalled = self._steps_stalled >= CATHETER_STALL_STEPS
+        ended = self.steps_at_depth >= END_GAME_STEPS
+        if self._with_catheter and (stalled or ended):
+            self.called = True

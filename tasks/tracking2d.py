@@ -41,14 +41,15 @@ from collections import deque
 
 import numpy as np
 
-from cathsim_dmc.anatomy.paths import CenterlinePath, deepest_on_polyline
-from cathsim_dmc.tasks.roadmap import AHEAD_MM, TRACK_AHEAD_M, TRACK_BACK_M
+from cathsim_dmc.anatomy.paths import CenterlinePath, CenterlineTree, WrongBranchMemory, deepest_on_polyline
+from cathsim_dmc.tasks.roadmap import AHEAD_MM, LOST_MARGIN_M, TRACK_AHEAD_M, TRACK_BACK_M
 
 TRACKED_MM = (0, 3, 6, 9, 12, 15, 20, 30)
 TRACKING_2D_SIZE = 2 * len(TRACKED_MM)
 HISTORY_STEPS = 4  # tracking_2d_history: the control steps it remembers (at 10 frames/s, 0.4 s)
 TRACKING_2D_HISTORY_SIZE = HISTORY_STEPS * TRACKING_2D_SIZE
 ROADMAP_2D_SIZE = 2 * len(AHEAD_MM) + 2 + 2 + 1 + 1
+WRONG_BRANCH_HEADING_2D_SIZE = 3
 MM = 1e-3
 
 
@@ -86,6 +87,12 @@ class ImageTracker:
         # first measurement fills it); the newest is `tracking_2d`.
         self._frames = deque([np.zeros((len(TRACKED_MM), 2))] * (HISTORY_STEPS + 1), maxlen=HISTORY_STEPS + 1)
         self._roadmap = np.zeros(ROADMAP_2D_SIZE)
+        self._tree = None  # the registered vessel tree, built when first needed
+        self._wrong_branches = None
+        # Kept only while `wrong_branch_heading_2d` is observed (the task sets this at a reset).
+        self.remembers_wrong_branches = False
+        self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_2D_SIZE)
+        self.remaining_m = self.target_distance_m = np.inf
 
     def start(self, random_state, registration_offset_m) -> None:
         """A new episode with the roadmap registered `registration_offset_m` (a world
@@ -94,6 +101,9 @@ class ImageTracker:
         self._offset = np.asarray(registration_offset_m, dtype=float).copy()
         self._s = None
         self._frames.clear()
+        self._wrong_branches = None  # forgotten: a new episode
+        self._wrong_branch_heading = np.zeros(WRONG_BRANCH_HEADING_2D_SIZE)
+        self.remaining_m = self.target_distance_m = np.inf
 
     def tracked(self, physics=None) -> np.ndarray:
         """The last measurement's tracked wire points (the `tracking_2d` observable)."""
@@ -108,6 +118,10 @@ class ImageTracker:
     def roadmap(self, physics=None) -> np.ndarray:
         """The last measurement's projected roadmap (the `roadmap_2d` observable)."""
         return self._roadmap.copy()
+
+    def wrong_branch_heading(self, physics=None) -> np.ndarray:
+        """The last measurement's `wrong_branch_heading_2d` (module docstring)."""
+        return self._wrong_branch_heading.copy()
 
     def measure(self, physics) -> None:
         task, line = self._task, self._line
@@ -127,11 +141,14 @@ class ImageTracker:
         s, outside_mm = deepest_on_polyline(road, line.arclength, line.radius / MM, tip, lo, hi)
         self._s = s
         end = line.length_m
+        self.remaining_m = end - s
+        self._wrong_branch_heading = self._remember_wrong_branches(tip, s, outside_mm, origin, to_image)
 
         def projected(s_m):
             return (line.at(s_m) + self._offset - origin) @ to_image.T
 
         ahead = np.array([projected(s + d * MM) for d in AHEAD_MM]) - tip
+        self.target_distance_m = float(np.linalg.norm(projected(end) - tip)) * MM
         self._frames.extend([tracked] * (1 if self._frames else self._frames.maxlen))
         self._roadmap = np.concatenate(
             [
@@ -142,3 +159,29 @@ class ImageTracker:
                 [outside_mm],
             ]
         )
+
+    def _remember_wrong_branches(self, tip, s, outside_mm, origin, to_image) -> np.ndarray:
+        """Note the branch of the projected vessel tree the tracked tip is lost in; the image
+        heading of a remembered one whose ostium the tip is passing, flagged."""
+        if not self.remembers_wrong_branches:
+            return np.zeros(WRONG_BRANCH_HEADING_2D_SIZE)
+        if self._wrong_branches is None:
+            if self._tree is None:
+                self._tree = CenterlineTree.from_asset(self._task.aorta.asset)
+            self._wrong_branches = WrongBranchMemory(self._tree, self._task.target_name)
+        if outside_mm > LOST_MARGIN_M / MM:
+            # The branch whose projected tube the tip lies deepest in, if it is inside one.
+            depths = {}
+            for name, other in self._tree.lines.items():
+                road = (other.points + self._offset - origin) @ to_image.T
+                depths[name] = deepest_on_polyline(road, other.arclength, other.radius / MM, tip)[1]
+            name = min(depths, key=depths.get)
+            if depths[name] <= 0:
+                self._wrong_branches.note_branch(name)
+        heading = self._wrong_branches.heading_near(s, self._line.radius_at(s))
+        if heading is None:
+            return np.zeros(WRONG_BRANCH_HEADING_2D_SIZE)
+        heading_2d = to_image @ heading
+        norm = np.linalg.norm(heading_2d)
+        # A branch heading straight along the view axis has no image direction: flagged only.
+        return np.concatenate([[1.0], heading_2d / norm if norm > 1e-9 else np.zeros(2)])

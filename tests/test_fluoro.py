@@ -25,6 +25,16 @@ ALLOWED = {
     "fluoro": {"pixels", "roadmap_overlay", "robot_state", "carm_view"},
     "tracking_2d": {"tracking_2d", "roadmap_2d", "robot_state", "carm_view"},
     "tracking_2d_memory": {"tracking_2d", "tracking_2d_history", "roadmap_2d", "robot_state", "carm_view"},
+    "tracking_2d_memory_carriage": {
+        "tracking_2d",
+        "tracking_2d_history",
+        "roadmap_2d",
+        "robot_state",
+        "carm_view",
+        "wrong_branch_heading_2d",
+        "catheter_called_2d",
+        "catheter_rate",
+    },
 }
 # What the image does not show: the 3-D tip (roadmap, tip_position), depth along the view
 # axis (roadmap's tip frame), wall and drive forces, the wire's bending angles and rates
@@ -43,8 +53,8 @@ PRIVILEGED = {
     "drive_force",
     "guidewire_mask",
 }
-# What a C-arm suite has but no image preset holds: the catheter carriage's encoder rate.
-C_ARM_NOT_IN_PRESETS = {"catheter_rate"}
+# What a C-arm suite has but no image preset holds (none now).
+C_ARM_NOT_IN_PRESETS = set()
 SHAPES = {
     "pixels": (1, 128, 128),
     "roadmap_overlay": (1, 128, 128),
@@ -53,6 +63,9 @@ SHAPES = {
     "tracking_2d": (TRACKING_2D_SIZE,),
     "roadmap_2d": (ROADMAP_2D_SIZE,),
     "tracking_2d_history": (TRACKING_2D_HISTORY_SIZE,),
+    "wrong_branch_heading_2d": (3,),
+    "catheter_called_2d": (1,),
+    "catheter_rate": (1,),
 }
 FORWARD = np.array([1.0, 0.3], dtype=np.float32)
 
@@ -92,9 +105,24 @@ def memory_env():
     env.close()
 
 
+@pytest.fixture(scope="module")
+def carriage_env():
+    env = CathSimEnv(task="bca", aorta="type1", obs="tracking_2d_memory_carriage")
+    yield env
+    env.close()
+
+
+FIXTURES = {
+    "fluoro": "fluoro_env",
+    "tracking_2d": "tracking_env",
+    "tracking_2d_memory": "memory_env",
+    "tracking_2d_memory_carriage": "carriage_env",
+}
+
+
 @pytest.mark.parametrize("preset", sorted(ALLOWED))
 def test_the_presets_hold_only_what_a_c_arm_shows(preset, request):
-    fixture = {"fluoro": "fluoro_env", "tracking_2d": "tracking_env", "tracking_2d_memory": "memory_env"}[preset]
+    fixture = FIXTURES[preset]
     env = request.getfixturevalue(fixture)
     assert OBSERVATION_PRESETS[preset].enabled == ALLOWED[preset]
     # Every observable the task can make is classified: a new one must be added to a list here.

@@ -200,7 +200,8 @@ class WrongBranchMemory:
     """The wrong branches a tip has entered on its way to `target`, and which way each heads.
 
     `note(tip_m)`, called while the tip is lost (outside the tube of the path to the
-    target), remembers the branch whose tube the tip is in (once per branch): the arc length
+    target), remembers the branch whose tube the tip is in (once per branch; `note_branch`
+    when the caller has found the branch itself, as the image tracker does): the arc length
     along the target's path where the branch leaves it and the branch's heading from its
     ostium (over two of its lumen radii). `heading_near(s_m, radius_m)` is the heading of a
     remembered branch whose ostium lies within two lumen radii of arc length `s_m`, or None.
@@ -214,7 +215,12 @@ class WrongBranchMemory:
 
     def note(self, tip_m) -> None:
         name, _, depth = self._tree.locate(tip_m, prefer=self._target)
-        if name == self._target or name in self._branches or depth > 0:
+        if depth <= 0:
+            self.note_branch(name)
+
+    def note_branch(self, name: str) -> None:
+        """Remember branch `name` as entered (the target's own line and a known one are ignored)."""
+        if name == self._target or name in self._branches:
             return
         other = self._tree.lines[name]
         s_leave = self._tree.junction_arclength_m(self._target, name)
