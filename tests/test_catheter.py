@@ -206,6 +206,38 @@ def test_catheter_called_is_raised_when_the_expert_brings_the_catheter_up(revers
     assert not any(observed for observed, _ in _catheter_flags("lcca", reverse_angle_lcca, 0, catheter=None))
 
 
+def test_the_image_tracker_keeps_the_same_memories_as_the_3d_tracker(reverse_angle_lcca):
+    """obs=tracking_2d_memory_carriage in an LAO 30 view, driven by the expert's actions beside
+    roadmap_memory_carriage: the wrong-branch flag agrees at nearly every step, its heading is
+    a unit vector in the image pointing cranially (the supra-aortic branches), and the
+    catheter's call comes at the same step."""
+    env = CathSimEnv("lcca", reverse_angle_lcca, "roadmap_memory_carriage", catheter="angled_5f")
+    image = CathSimEnv("lcca", reverse_angle_lcca, "tracking_2d_memory_carriage", catheter="angled_5f", lao_deg=30)
+    expert = CenterlineExpert()
+    observation, _ = env.reset(seed=0)
+    seen, _ = image.reset(seed=0)
+    flags, headings, called = [], [], []
+    try:
+        for _ in range(300):
+            action = expert(observation, env)
+            flags.append((observation["wrong_branch_heading"][0], seen["wrong_branch_heading_2d"][0]))
+            if seen["wrong_branch_heading_2d"][0]:
+                headings.append(seen["wrong_branch_heading_2d"][1:])
+            called.append((observation["catheter_called"][0], seen["catheter_called_2d"][0]))
+            observation, _, terminated, truncated, _ = env.step(action)
+            seen, *_ = image.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+        image.close()
+    flags, headings, called = np.array(flags), np.array(headings), np.array(called)
+    assert np.mean(flags[:, 0] == flags[:, 1]) >= 0.95 and len(headings) > 20
+    np.testing.assert_allclose(np.linalg.norm(headings, axis=1), 1.0, atol=1e-5)
+    assert (headings[:, 1] > 0.5).all()
+    assert called[:, 0].any() and np.argmax(called[:, 0]) == np.argmax(called[:, 1])
+
+
 def test_the_carriage_rate_is_what_it_moved_over_its_full_speed():
     """catheter_rate (obs=roadmap_memory_carriage): the commanded speed while the carriage is
     free, zero where the sheath holds it, the share it moved where the wire's tip stops it."""
