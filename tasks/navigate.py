@@ -402,7 +402,14 @@ class Navigate(composer.Task):
 
     def _observes_image_plane(self) -> bool:
         observables = self._task_observables
-        watched = ("tracking_2d", "roadmap_2d", "tracking_2d_history", "wrong_branch_heading_2d", "catheter_called_2d")
+        watched = (
+            "tracking_2d",
+            "roadmap_2d",
+            "tracking_2d_history",
+            "target_depth_time_2d",
+            "wrong_branch_heading_2d",
+            "catheter_called_2d",
+        )
         return any(observables[name].enabled for name in watched)
 
     def _track_image(self, physics) -> None:
@@ -585,6 +592,12 @@ class Navigate(composer.Task):
         """Whether the expert's rule for bringing the catheter up has fired on the tracked tip
         this episode (`catheter_called`; with a catheter, while a roadmap observable is on)."""
         return self._clocks.called
+
+    @property
+    def steps_at_target_depth_2d(self) -> int:
+        """`steps_at_target_depth` counted from the image tracker's readings
+        (`target_depth_time_2d`; while an image-plane observable is on)."""
+        return self._clocks_2d.steps_at_depth
 
     @property
     def catheter_called_2d(self) -> bool:

@@ -95,6 +95,9 @@ def task_observables(
         # instead of the 3-D tip's (the branch's heading in image coordinates).
         "wrong_branch_heading_2d": observable.Generic(image_tracker.wrong_branch_heading),
         "catheter_called_2d": observable.Generic(lambda physics: np.array([float(task.catheter_called_2d)])),
+        "target_depth_time_2d": observable.Generic(
+            lambda physics: np.array([min(task.steps_at_target_depth_2d, DEPTH_CLOCK_STEPS) / DEPTH_CLOCK_STEPS])
+        ),
         # The C-arm's angles as it reports them: LAO (negative: RAO) and cranial (negative: caudal), radians.
         "carm_view": observable.Generic(lambda physics: np.radians(np.asarray(task.carm_view_deg, dtype=float))),
         "guidewire_mask": observable.Generic(top_view.mask),

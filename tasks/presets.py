@@ -31,6 +31,7 @@ PRESET_OBSERVABLES = (
     "tracking_2d_history",
     "wrong_branch_heading_2d",
     "catheter_called_2d",
+    "target_depth_time_2d",
     "carm_view",
 )
 # Options a preset file may set (besides name and observables).

@@ -36,6 +36,7 @@ ALLOWED = {
         "catheter_rate",
     },
 }
+ALLOWED["tracking_2d_memory_carriage_timed"] = ALLOWED["tracking_2d_memory_carriage"] | {"target_depth_time_2d"}
 # What the image does not show: the 3-D tip (roadmap, tip_position), depth along the view
 # axis (roadmap's tip frame), wall and drive forces, the wire's bending angles and rates
 # (joint_pos, joint_vel), its slack, the simulator's own wire segmentation, the depth clock and
@@ -66,6 +67,7 @@ SHAPES = {
     "wrong_branch_heading_2d": (3,),
     "catheter_called_2d": (1,),
     "catheter_rate": (1,),
+    "target_depth_time_2d": (1,),
 }
 FORWARD = np.array([1.0, 0.3], dtype=np.float32)
 
@@ -112,11 +114,19 @@ def carriage_env():
     env.close()
 
 
+@pytest.fixture(scope="module")
+def timed_env():
+    env = CathSimEnv(task="bca", aorta="type1", obs="tracking_2d_memory_carriage_timed")
+    yield env
+    env.close()
+
+
 FIXTURES = {
     "fluoro": "fluoro_env",
     "tracking_2d": "tracking_env",
     "tracking_2d_memory": "memory_env",
     "tracking_2d_memory_carriage": "carriage_env",
+    "tracking_2d_memory_carriage_timed": "timed_env",
 }
 
 
@@ -356,3 +366,30 @@ def test_the_view_range_reaches_the_environment_from_the_tools_config():
     for name, preset in OBSERVATION_PRESETS.items():
         if name not in ALLOWED:
             assert preset.view_deg_range is None and preset.cranial_deg_range is None and preset.lao_deg == 0
+
+
+def test_the_image_trackers_depth_clock_counts_as_the_3d_trackers():
+    """target_depth_time_2d (LAO 30) beside target_depth_time (obs=roadmap_timed), the expert's
+    actions driving both: the same count at every step of a type III BCA episode."""
+    from cathsim_dmc.control.expert import CenterlineExpert
+
+    env = CathSimEnv("bca", "type3", "roadmap_timed")
+    image = CathSimEnv("bca", "type3", "tracking_2d_memory_carriage_timed", lao_deg=30)
+    expert = CenterlineExpert()
+    observation, _ = env.reset(seed=0)
+    seen, _ = image.reset(seed=0)
+    clocks = []
+    try:
+        for _ in range(300):
+            clocks.append((observation["target_depth_time"][0], seen["target_depth_time_2d"][0]))
+            action = expert(observation, env)
+            observation, _, terminated, truncated, _ = env.step(action)
+            seen, *_ = image.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+        image.close()
+    clocks = np.array(clocks)
+    assert clocks[:, 0].max() > 0
+    np.testing.assert_array_equal(clocks[:, 0], clocks[:, 1])
