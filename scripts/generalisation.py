@@ -20,7 +20,8 @@ one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,.
   the scripted expert; the type I specialist; the shipped navigator (`policy=pretrained`);
 - anatomies: the held-out pool (`pool_seed=heldout`: 100 arches of aorta=random's
   "morphometry" distribution, each visited once), the same pool with the roadmap's
-  tracking and registration noise (navigators only), the nine shipped aortas and the
+  tracking and registration noise (navigators only), the same pool in the AP view
+  (`heldout_ap`: navigators that see the C-arm, trained on views drawn per episode), the nine shipped aortas and the
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
   `cathsim-aorta import` and default options, the close-ostia meshes in the sim, LPS and
   RAS frames with their sites found.
@@ -80,6 +81,10 @@ TUNING_NAME = "tuning"
 # EM-tracked tip (about 1 mm) and a CTA-to-fluoroscopy registration (about 2 mm).
 NOISE = dict(tracking_noise_m=0.001, registration_error_m=0.002)
 NOISY_NAME = "heldout_noise"
+# The held-out pool again in the AP view, for a policy that sees the C-arm (trained on views
+# drawn per episode, scored on them under HELDOUT_NAME).
+AP_VIEW = dict(lao_deg=0, view_deg_range=None, cranial_deg_range=None)
+AP_NAME = "heldout_ap"
 CORPUS = ("noisy", "decimated", "pinched", "stump", "wall_shell")
 # The close-ostia corpus meshes, each written in the simulator's frame and in the two patient
 # frames with a scanner's origin far from the anatomy, imported with defaults (sites found).
@@ -270,6 +275,10 @@ def _pool(params: dict) -> list:
     return ["aorta=random", *[f"aorta.params.{k}={v}".replace(" ", "") for k, v in params.items()]]
 
 
+def _obs_overrides(options: dict) -> list:
+    return [f"obs.{k}={'null' if v is None else v}" for k, v in options.items()]
+
+
 def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_anatomies: list | None = None) -> dict:
     """anatomy name -> (its cathsim-eval overrides, the key of them a sweep over anatomies
     varies, or None)."""
@@ -277,6 +286,7 @@ def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_ana
         HELDOUT_NAME: ([*_pool(HELDOUT), f"episodes={episodes}"], None),
         TUNING_NAME: ([*_pool(TUNING), f"episodes={TUNING['pool_size']}"], None),
         NOISY_NAME: ([*_pool(HELDOUT), *[f"obs.{k}={v}" for k, v in NOISE.items()], f"episodes={episodes}"], None),
+        AP_NAME: ([*_pool(HELDOUT), *_obs_overrides(AP_VIEW), f"episodes={episodes}"], None),
     }
     anatomies.update({name: ([f"aorta={name}", f"episodes={shipped_episodes}"], "aorta") for name in SHIPPED})
     if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
@@ -294,6 +304,8 @@ def anatomy_of(overrides: dict) -> str:
     if overrides.get("aorta") == "random":
         if str(overrides["aorta.params.pool_seed"]) == str(TUNING["pool_seed"]):
             return TUNING_NAME
+        if "obs.view_deg_range" in overrides:
+            return AP_NAME
         return NOISY_NAME if "obs.tracking_noise_m" in overrides else HELDOUT_NAME
     if overrides.get("aorta") == "folder":
         return f"corpus_{Path(overrides['aorta.name']).name}"
@@ -330,6 +342,10 @@ def evaluation_jobs(
                 checkpoint and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled
             ):
                 continue  # the noise is the roadmap's: the expert and the specialist do not read it
+            if anatomy == AP_NAME and not (
+                checkpoint and "carm_view" in OBSERVATION_PRESETS[policy.obs_preset].enabled
+            ):
+                continue  # only a policy that sees the C-arm has a view to fix
             if sweeps.finished_report(root / "scores" / task / policy_name / anatomy / "metrics.json"):
                 continue
             point = {"policy": source}
@@ -342,7 +358,13 @@ def evaluation_jobs(
                 "video=false",
                 # A trained agent brings its own observations (named where their noise is set); the
                 # expert's do not change what it does.
-                *([f"obs={policy.obs_preset}"] if anatomy == NOISY_NAME else [] if checkpoint else ["obs=roadmap"]),
+                *(
+                    [f"obs={policy.obs_preset}"]
+                    if anatomy in (NOISY_NAME, AP_NAME)
+                    else []
+                    if checkpoint
+                    else ["obs=roadmap"]
+                ),
                 # The scripted expert drives the catheter the navigators are trained with; a
                 # checkpoint brings its own (policy.json's env_options).
                 *([f"task.catheter={catheter}"] if policy_name == "expert" and catheter else []),
@@ -458,8 +480,8 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
             f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
             "",
             "| policy | seeds | success % | safe success % | SPL % | force N | episode length | type I | type II "
-            "| type III | separate ostia | close ostia | bovine | success % with noise |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| type III | separate ostia | close ostia | bovine | success % with noise | success % AP view |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
@@ -487,7 +509,10 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
                 f"{_cell([mean(m, 'episode_length') for m in reports])} | "
                 + " | ".join(by_type)
                 + " | "
-                + _cell([mean(m, "success_pct") for m in (_metrics(f / NOISY_NAME) for f in folders) if m])
+                + " | ".join(
+                    _cell([mean(m, "success_pct") for m in (_metrics(f / name) for f in folders) if m])
+                    for name in (NOISY_NAME, AP_NAME)
+                )
                 + " |"
             )
         # One row per anatomy, one column per (target, policy) scored on any of them.

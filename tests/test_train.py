@@ -245,3 +245,28 @@ def test_slurm_launcher_config_composes_with_the_shipped_settings(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     assert "SlurmLauncher" in result.stdout and "partition: gpu" in result.stdout
     assert "gpus_per_node: 1" in result.stdout and "mem_gb: 32" in result.stdout
+
+
+def test_a_checkpoint_keeps_its_views_unless_the_command_line_fixes_one(tmp_path):
+    """A tracking_2d agent trained on views drawn per episode is evaluated on such views (each
+    episode's angles in metrics.json), and in the AP view with an explicit obs.view_deg_range=null."""
+    run = tmp_path / "run"
+    views = ["obs=tracking_2d", "obs.view_deg_range=[-45,45]"]
+    trained = _train([*TINY[1:], *views, "trainer.total_timesteps=30", f"hydra.run.dir={run}"], tmp_path)
+    assert trained.returncode == 0, trained.stderr[-2000:]
+
+    def episodes(name, *extra):
+        result = subprocess.run(
+            [sys.executable, "-m", "cathsim_dmc.app.cli.eval", f"policy={run}", "episodes=2", "task.max_steps=3"]
+            + ["video=false", f"hydra.run.dir={tmp_path}/{name}", *extra],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert result.returncode == 0, result.stderr[-2000:]
+        return json.loads((tmp_path / name / "metrics.json").read_text())["episodes"]
+
+    drawn = [e["carm_view_deg"] for e in episodes("drawn")]
+    assert all(-45 <= lao <= 45 and cranial == 0 for lao, cranial in drawn) and drawn[0] != drawn[1]
+    assert all("carm_view_deg" not in e for e in episodes("ap", "obs.view_deg_range=null"))

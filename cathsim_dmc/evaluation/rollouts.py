@@ -104,6 +104,8 @@ def run_episodes(
                     "diverged": bool(info["diverged"]),
                     "final_distance_m": info["target_distance_m"],
                     **({"aorta": info["aorta"]} if random_anatomy else {}),
+                    # The episode's C-arm angles (LAO, cranial; degrees), where a view is drawn per episode.
+                    **({"carm_view_deg": list(env.task.carm_view_deg)} if _draws_views(env.task) else {}),
                 }
             )
             if log_episodes:
@@ -113,6 +115,11 @@ def run_episodes(
     finally:
         progress.close()
     return summaries
+
+
+def _draws_views(task) -> bool:
+    settings = task.observation_settings
+    return settings.view_deg_range is not None or settings.cranial_deg_range is not None
 
 
 def write_report(arrays: dict, asset, label: dict, out_dir, episodes: list | None = None, tree_for=None) -> dict:

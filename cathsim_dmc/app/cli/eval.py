@@ -12,6 +12,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# What a checkpoint records of how it saw its episodes but an explicit obs.<key>= may change at
+# evaluation: the C-arm's view, the detector's noise and blur, the tracking and registration
+# errors. They leave the observations' shapes as they were.
+VIEW_AND_NOISE_OPTIONS = (
+    "tracking_noise_m",
+    "registration_error_m",
+    "lao_deg",
+    "view_deg_range",
+    "cranial_deg_range",
+    "detector_dose_ngy",
+    "blur_mm",
+)
+
 
 def evaluate(cfg) -> dict:
     from hydra.core.hydra_config import HydraConfig
@@ -41,9 +54,14 @@ def evaluate(cfg) -> dict:
         # A deliberate transfer test: the agent under other solver settings than it was
         # trained with (it records its own in policy.json, and those win otherwise).
         kwargs["physics"] = cfg.task.physics
-    for key in ("tracking_noise_m", "registration_error_m"):
-        if checkpoint and explicit_override(f"obs.{key}"):  # a robustness test: the roadmap's noise
-            kwargs[key] = cfg.obs[key]
+    for key in VIEW_AND_NOISE_OPTIONS:
+        # A robustness test: the roadmap's noise, another C-arm view or detector than in training.
+        if checkpoint and explicit_override(f"obs.{key}"):
+            value = cfg.obs.get(key)
+            if value is None:
+                kwargs.pop(key, None)
+            else:
+                kwargs[key] = list(value) if key.endswith("_range") else value
     env = CathSimEnv(**kwargs)
     name = Path(str(cfg.policy)).name if checkpoint else str(cfg.policy)
     try:
