@@ -91,6 +91,7 @@ def build_task(
     blur_mm: float | None = None,
     view_deg_range=None,
     cranial_deg_range=None,
+    tracking_source: str | None = None,
     **task_kwargs,
 ) -> Navigate:
     """The Navigate task for a (target, aorta) pair with entity parameters overridden.
@@ -106,7 +107,9 @@ def build_task(
     tracking (`cathsim_dmc.tasks.tracking2d`). `detector_dose_ngy` and `blur_mm` set the
     fluoroscopic detector of the `fluoro` style (`cathsim_dmc.sim.detector`);
     `view_deg_range` and `cranial_deg_range` ([low, high] degrees) draw a C-arm view per
-    episode (`Navigate`). `safe_force_n` sets the wall force a safe success stays under.
+    episode (`Navigate`). `tracking_source="fluoro_image"` finds the wire of the image-plane
+    observations in the fluoroscopic frame (`cathsim_dmc.sim.wire_finder`). `safe_force_n`
+    sets the wall force a safe success stays under.
     `physics="fast"` (default), `"fast_field"` or `"accurate"` picks the physics settings (`Navigate`).
     """
     validate(task, aorta, obs)
@@ -138,6 +141,7 @@ def build_task(
         blur_mm=blur_mm,
         view_deg_range=view_deg_range,
         cranial_deg_range=cranial_deg_range,
+        tracking_source=tracking_source,
     )
     settings = observation_settings(obs, **{k: v for k, v in image_options.items() if v is not None})
     wire = Guidewire(**(guidewire or {}))

@@ -37,7 +37,14 @@ def task_observables(
         settings.image_size, renderer=settings.renderer, wire=guidewire, vessel_geom_id=task.aorta.visual_geom_id
     )
     roadmap = RoadmapTracker(task, settings.tracking_noise_m, settings.registration_error_m)
-    image_tracker = ImageTracker(task, settings.tracking_noise_m)
+    fluoro_frame = None
+    if settings.tracking_source == "fluoro_image":
+        corrupt = detector_frame(top_view, settings)
+
+        def fluoro_frame(physics, random_state):
+            return corrupt(top_view.image(physics, "fluoro"), random_state)
+
+    image_tracker = ImageTracker(task, settings.tracking_noise_m, frame=fluoro_frame)
 
     def catheter_features():
         # With a catheter: its tip's offset behind the wire's tip over the robot's stroke.

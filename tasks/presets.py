@@ -36,6 +36,18 @@ PRESET_OBSERVABLES = (
 )
 # Options a preset file may set (besides name and observables).
 PRESET_OPTIONS = ("image_size", *IMAGE_OPTIONS)
+TRACKING_SOURCES = ("projection", "fluoro_image")  # ObservationSettings.tracking_source
+# The observables of the image tracker (tasks/tracking2d.py), which tracking_source feeds.
+IMAGE_PLANE_OBSERVABLES = frozenset(
+    (
+        "tracking_2d",
+        "tracking_2d_history",
+        "roadmap_2d",
+        "wrong_branch_heading_2d",
+        "catheter_called_2d",
+        "target_depth_time_2d",
+    )
+)
 MAX_VIEW_DEG = 45.0  # the largest LAO/RAO and cranial/caudal angle a per-episode view may draw
 
 
@@ -95,14 +107,19 @@ def observation_settings(preset: str, **overrides) -> ObservationSettings:
         check_number(key, getattr(settings, key), 0)  # a standard deviation in metres
     if not -90 <= check_number("lao_deg", settings.lao_deg) <= 90:
         raise ValueError(f"lao_deg={settings.lao_deg!r} must be between -90 and 90 (degrees; 0 = AP)")
+    # The tracking presets' frame (tracking_source="fluoro_image") is a fluoro frame whatever `style` says.
+    reads_frames = settings.style == "fluoro" or bool(settings.enabled & IMAGE_PLANE_OBSERVABLES)
     for key in ("detector_dose_ngy", "blur_mm"):
-        if check_number(key, getattr(settings, key), 0) > 0 and settings.style != "fluoro":
+        if check_number(key, getattr(settings, key), 0) > 0 and not reads_frames:
             raise ValueError(
-                f"{key}={getattr(settings, key)!r} is the fluoroscopic detector's; it needs style='fluoro'"
+                f"{key}={getattr(settings, key)!r} is the fluoroscopic detector's; it needs style='fluoro' "
+                f"(or an image-plane preset, whose tracker may read fluoro frames)"
             )
     for key in ("view_deg_range", "cranial_deg_range"):
         if getattr(settings, key) is not None:
             check_view_range(key, getattr(settings, key))
+    if settings.tracking_source not in TRACKING_SOURCES:
+        raise ValueError(f"tracking_source={settings.tracking_source!r}; choose one of {list(TRACKING_SOURCES)}")
     if settings.view_deg_range is not None and settings.lao_deg != 0:
         raise ValueError(
             f"lao_deg={settings.lao_deg!r} and view_deg_range={list(settings.view_deg_range)}: give one, "

@@ -42,6 +42,7 @@ from collections import deque
 import numpy as np
 
 from cathsim_dmc.anatomy.paths import CenterlinePath, CenterlineTree, WrongBranchMemory, deepest_on_polyline
+from cathsim_dmc.sim.wire_finder import wire_mask, wire_path_px
 from cathsim_dmc.tasks.roadmap import AHEAD_MM, LOST_MARGIN_M, TRACK_AHEAD_M, TRACK_BACK_M
 
 TRACKED_MM = (0, 3, 6, 9, 12, 15, 20, 30)
@@ -75,8 +76,11 @@ class ImageTracker:
     """The image-plane tracking and roadmap of one task, over an episode: `start` at a
     reset (after the episode's view is set), `measure` once per control step."""
 
-    def __init__(self, task, tracking_noise_m: float = 0.0):
+    def __init__(self, task, tracking_noise_m: float = 0.0, frame=None):
         points, radius = task.aorta.asset.centerlines[task.target_name]
+        # With `frame` ((physics, random_state) -> the fluoroscopic frame, uint8), the wire is
+        # found in that image (tracking_source="fluoro_image"); else it is projected.
+        self._frame = frame
         self._line = CenterlinePath(points, radius)
         self._task = task
         self.tracking_noise_m = float(tracking_noise_m)
@@ -126,10 +130,16 @@ class ImageTracker:
     def measure(self, physics) -> None:
         task, line = self._task, self._line
         origin, to_image = image_plane(physics)
-        wire = task.guidewire
-        joints = np.concatenate([physics.bind(wire.segments).xpos, [task.tip_position_m(physics)]])
-        wire_2d = (joints - origin) @ to_image.T
-        tracked = resample_back(wire_2d, np.asarray(TRACKED_MM, dtype=float))
+        if self._frame is None:
+            wire = task.guidewire
+            joints = np.concatenate([physics.bind(wire.segments).xpos, [task.tip_position_m(physics)]])
+            wire_2d = (joints - origin) @ to_image.T
+        else:
+            wire_2d = self._wire_in_frame(physics, origin, to_image)
+        if wire_2d is None:  # nothing found in the frame: the tracker holds its last fix
+            tracked = self._frames[-1] if self._frames else np.zeros((len(TRACKED_MM), 2))
+        else:
+            tracked = resample_back(wire_2d, np.asarray(TRACKED_MM, dtype=float))
         if self.tracking_noise_m > 0:
             tracked = tracked + self._random_state.normal(0.0, self.tracking_noise_m / MM, tracked.shape)
         tip = tracked[0]
@@ -159,6 +169,21 @@ class ImageTracker:
                 [outside_mm],
             ]
         )
+
+    def _wire_in_frame(self, physics, origin, to_image) -> np.ndarray | None:
+        """The wire found in this step's fluoroscopic frame, in image-plane mm, from the
+        sheath to the tip (None if not found). The frame is orthographic: a pixel spans
+        fovy / size of the image plane."""
+        frame = self._frame(physics, self._random_state)
+        size = frame.shape[0]
+        mm_per_px = physics.model.cam_fovy[physics.model.name2id("top", "camera")] / size / MM
+        entry_mm = (self._line.points[0] + self._offset - origin) @ to_image.T  # the sheath, on the roadmap
+        entry_px = (entry_mm[0] / mm_per_px + size / 2, size / 2 - entry_mm[1] / mm_per_px)
+        path = wire_path_px(wire_mask(frame), entry_px)
+        if path is None:
+            return None
+        path_mm = np.stack([(path[:, 0] - size / 2) * mm_per_px, (size / 2 - path[:, 1]) * mm_per_px], axis=1)
+        return path_mm[::-1]
 
     def _remember_wrong_branches(self, tip, s, outside_mm, origin, to_image) -> np.ndarray:
         """Note the branch of the projected vessel tree the tracked tip is lost in; the image

@@ -67,4 +67,5 @@ IMAGE_OPTIONS = (
     "blur_mm",
     "view_deg_range",
     "cranial_deg_range",
+    "tracking_source",
 )

@@ -53,6 +53,11 @@ class ObservationSettings:
     # the fixed view of `lao_deg`.
     view_deg_range: tuple | None = None
     cranial_deg_range: tuple | None = None
+    # Where the image-plane observations (`tracking_2d`, ...) find the wire: "projection"
+    # (the simulator's wire projected into the view, plus `tracking_noise_m`) or
+    # "fluoro_image" (found in the step's fluoroscopic frame of this image size and detector,
+    # `cathsim_dmc.sim.wire_finder`).
+    tracking_source: str = "projection"
 
 
 def image_noise(std: float):

@@ -363,6 +363,8 @@ def env_kwargs(cfg, training: bool = False, policy=None) -> dict:
         for key in ("lao_deg", "tracking_noise_m", "registration_error_m"):
             if not kwargs.get(key):  # the AP view, no noise: recorded as before the options existed
                 kwargs.pop(key, None)
+        if kwargs.get("tracking_source") == "projection":  # the default, as before the option existed
+            kwargs.pop("tracking_source")
     experimental = cfg.get("experimental")
     if experimental is not None and experimental.get("extra_observations"):
         kwargs["extra_observations"] = tuple(experimental.extra_observations)

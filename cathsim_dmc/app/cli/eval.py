@@ -23,6 +23,7 @@ VIEW_AND_NOISE_OPTIONS = (
     "cranial_deg_range",
     "detector_dose_ngy",
     "blur_mm",
+    "tracking_source",
 )
 
 
