@@ -21,7 +21,9 @@ one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,.
 - anatomies: the held-out pool (`pool_seed=heldout`: 100 arches of aorta=random's
   "morphometry" distribution, each visited once), the same pool with the roadmap's
   tracking and registration noise (navigators only), the same pool in the AP view
-  (`heldout_ap`: navigators that see the C-arm, trained on views drawn per episode), the nine shipped aortas and the
+  (`heldout_ap`: navigators that see the C-arm, trained on views drawn per episode), the
+  same pool with the wire found in the fluoroscopic frame (`heldout_fluoro_image`:
+  navigators of the image tracker's observations), the nine shipped aortas and the
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
   `cathsim-aorta import` and default options, the close-ostia meshes in the sim, LPS and
   RAS frames with their sites found.
@@ -85,6 +87,11 @@ NOISY_NAME = "heldout_noise"
 # drawn per episode, scored on them under HELDOUT_NAME).
 AP_VIEW = dict(lao_deg=0, view_deg_range=None, cranial_deg_range=None)
 AP_NAME = "heldout_ap"
+# The held-out pool again with the wire of the image-plane observations found in each step's
+# fluoroscopic frame instead of projected (obs.tracking_source=fluoro_image), for a policy
+# that reads them.
+FLUORO_TRACKING = dict(tracking_source="fluoro_image")
+FLUORO_TRACKING_NAME = "heldout_fluoro_image"
 CORPUS = ("noisy", "decimated", "pinched", "stump", "wall_shell")
 # The close-ostia corpus meshes, each written in the simulator's frame and in the two patient
 # frames with a scanner's origin far from the anatomy, imported with defaults (sites found).
@@ -287,6 +294,7 @@ def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_ana
         TUNING_NAME: ([*_pool(TUNING), f"episodes={TUNING['pool_size']}"], None),
         NOISY_NAME: ([*_pool(HELDOUT), *[f"obs.{k}={v}" for k, v in NOISE.items()], f"episodes={episodes}"], None),
         AP_NAME: ([*_pool(HELDOUT), *_obs_overrides(AP_VIEW), f"episodes={episodes}"], None),
+        FLUORO_TRACKING_NAME: ([*_pool(HELDOUT), *_obs_overrides(FLUORO_TRACKING), f"episodes={episodes}"], None),
     }
     anatomies.update({name: ([f"aorta={name}", f"episodes={shipped_episodes}"], "aorta") for name in SHIPPED})
     if not only_anatomies or any(a.startswith("corpus_") for a in only_anatomies):
@@ -306,6 +314,8 @@ def anatomy_of(overrides: dict) -> str:
             return TUNING_NAME
         if "obs.view_deg_range" in overrides:
             return AP_NAME
+        if "obs.tracking_source" in overrides:
+            return FLUORO_TRACKING_NAME
         return NOISY_NAME if "obs.tracking_noise_m" in overrides else HELDOUT_NAME
     if overrides.get("aorta") == "folder":
         return f"corpus_{Path(overrides['aorta.name']).name}"
@@ -325,7 +335,7 @@ def evaluation_jobs(
     anatomy) without its report yet: a sweep over the policies, and over the shipped aortas
     or the corpus meshes, that share the rest."""
     from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
-    from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
+    from cathsim_dmc.tasks.presets import IMAGE_PLANE_OBSERVABLES, OBSERVATION_PRESETS
 
     anatomies = anatomy_overrides(root, episodes, shipped_episodes, only_anatomies)
     catheter = recipe_catheter()  # read once: the recipe's YAML
@@ -346,6 +356,10 @@ def evaluation_jobs(
                 checkpoint and "carm_view" in OBSERVATION_PRESETS[policy.obs_preset].enabled
             ):
                 continue  # only a policy that sees the C-arm has a view to fix
+            if anatomy == FLUORO_TRACKING_NAME and not (
+                checkpoint and OBSERVATION_PRESETS[policy.obs_preset].enabled & IMAGE_PLANE_OBSERVABLES
+            ):
+                continue  # only the image tracker's observables have a wire to find in the frame
             if sweeps.finished_report(root / "scores" / task / policy_name / anatomy / "metrics.json"):
                 continue
             point = {"policy": source}
@@ -360,7 +374,7 @@ def evaluation_jobs(
                 # expert's do not change what it does.
                 *(
                     [f"obs={policy.obs_preset}"]
-                    if anatomy in (NOISY_NAME, AP_NAME)
+                    if anatomy in (NOISY_NAME, AP_NAME, FLUORO_TRACKING_NAME)
                     else []
                     if checkpoint
                     else ["obs=roadmap"]
@@ -480,8 +494,9 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
             f"### {task.upper()}: {HELDOUT['pool_size']} held-out arches",
             "",
             "| policy | seeds | success % | safe success % | SPL % | force N | episode length | type I | type II "
-            "| type III | separate ostia | close ostia | bovine | success % with noise | success % AP view |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| type III | separate ostia | close ostia | bovine | success % with noise | success % AP view "
+            "| success % wire found in the fluoro frame |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
@@ -511,7 +526,7 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
                 + " | "
                 + " | ".join(
                     _cell([mean(m, "success_pct") for m in (_metrics(f / name) for f in folders) if m])
-                    for name in (NOISY_NAME, AP_NAME)
+                    for name in (NOISY_NAME, AP_NAME, FLUORO_TRACKING_NAME)
                 )
                 + " |"
             )

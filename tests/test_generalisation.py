@@ -49,7 +49,7 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_v
     all_reached, half = "100 (100, 100, 100)", "50 (50, 0, 100)"
     assert best[7:10] == [all_reached, all_reached, half]  # by arch type
     assert best[10:13] == [all_reached, all_reached, half]  # by variant
-    assert best[13:] == ["50", "100 |"]  # with noise: seed 0; in the AP view: seed 1
+    assert best[13:] == ["50", "100", "- |"]  # with noise: seed 0; in the AP view: seed 1; none from the frame
     assert rows["navigator, last.zip"].split(" | ")[2] == "0"
     assert rows["expert"].split(" | ")[3] == "-"  # a report from before safe success
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there
@@ -109,7 +109,7 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
 
     script = load_script(repo_root / "scripts" / "generalisation.py")
     _write(tmp_path / "scores" / "bca" / "expert" / "type2", [True], ["type2"])  # scored already
-    anatomies = ["heldout", "heldout_noise", "heldout_ap", "type1", "type2"]
+    anatomies = ["heldout", "heldout_noise", "heldout_ap", "heldout_fluoro_image", "type1", "type2"]
     jobs = script.evaluation_jobs(tmp_path, "bca", 7, 3, None, False, anatomies)
     scored = set()
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
@@ -131,8 +131,9 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                 # the expert drives the catheter the navigator recipe trains with
                 assert cfg.task.catheter == ("angled_5f" if job["policy"] == "expert" else None)
     # The expert has no roadmap to be noisy; the shipped navigator has. Neither sees the C-arm.
-    expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise", "heldout_ap")}
-    expected |= {("pretrained", a) for a in anatomies if a != "heldout_ap"}
+    c_arm = ("heldout_ap", "heldout_fluoro_image")
+    expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise", *c_arm)}
+    expected |= {("pretrained", a) for a in anatomies if a not in c_arm}
     assert scored == expected
     assert len(jobs) == 5  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
     corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
@@ -140,6 +141,9 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
     assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "tuning"}) == "tuning"
     ap = dict(o.split("=", 1) for o in script.anatomy_overrides(tmp_path, 7, 3, ["heldout_ap"])["heldout_ap"][0])
     assert script.anatomy_of(ap) == "heldout_ap" and ap["obs.view_deg_range"] == "null"
+    frame = script.anatomy_overrides(tmp_path, 7, 3, ["heldout_fluoro_image"])["heldout_fluoro_image"][0]
+    frame = dict(o.split("=", 1) for o in frame)
+    assert script.anatomy_of(frame) == "heldout_fluoro_image" and frame["obs.tracking_source"] == "fluoro_image"
 
 
 def test_evaluate_runs_a_multirun_and_files_each_score_in_its_place(tmp_path, repo_root):
