@@ -221,10 +221,11 @@ def policies(root: Path, task: str, unfinished: bool = False) -> dict:
     """name -> what make_policy takes, for every policy that exists (a navigator run once it
     has its final report, or with `unfinished` as soon as it has checkpoints)."""
     found = {"expert": "expert"}
-    from cathsim_dmc.agents.trained import shipped_targets
+    from cathsim_dmc.agents.trained import PRETRAINED_KINDS, shipped_targets
 
-    if task in shipped_targets():
-        found["pretrained"] = "pretrained"
+    for kind in PRETRAINED_KINDS:
+        if task in shipped_targets(kind=kind):
+            found[kind] = kind
     specialist = root / "runs" / task / "type1" / "checkpoints" / "best.zip"
     if specialist.is_file():
         found["specialist_type1"] = str(specialist)
@@ -337,6 +338,9 @@ def evaluation_jobs(
     from cathsim_dmc.agents.trained import CheckpointPolicy, make_policy
     from cathsim_dmc.tasks.presets import IMAGE_PLANE_OBSERVABLES, OBSERVATION_PRESETS
 
+    # what the tracking and registration noise of NOISY_NAME moves: the 3-D roadmap, the overlay
+    # drawn on the fluoroscopic image, and the image tracker's readings
+    tracked_observables = IMAGE_PLANE_OBSERVABLES | {"roadmap", "roadmap_overlay"}
     anatomies = anatomy_overrides(root, episodes, shipped_episodes, only_anatomies)
     catheter = recipe_catheter()  # read once: the recipe's YAML
     groups: dict = {}
@@ -349,9 +353,9 @@ def evaluation_jobs(
             if anatomy == TUNING_NAME and not policy_name.startswith("navigator_"):
                 continue  # the tuning pool chooses the seed to ship
             if anatomy == NOISY_NAME and not (
-                checkpoint and "roadmap" in OBSERVATION_PRESETS[policy.obs_preset].enabled
+                checkpoint and OBSERVATION_PRESETS[policy.obs_preset].enabled & tracked_observables
             ):
-                continue  # the noise is the roadmap's: the expert and the specialist do not read it
+                continue  # the noise is the tracking's and the roadmap's: the expert and the specialist do not read it
             if anatomy == AP_NAME and not (
                 checkpoint and "carm_view" in OBSERVATION_PRESETS[policy.obs_preset].enabled
             ):
@@ -594,11 +598,16 @@ def _failures_near_target(scores: Path, within_m: float = 0.0085) -> tuple:
     return len(final), sum(d < within_m for d in final)
 
 
-def ship(root: Path, task: str, seed: int | None = None, why: str | None = None) -> Path:
+def ship(root: Path, task: str, seed: int | None = None, why: str | None = None, fluoro: bool = False) -> Path:
     """Export the navigator seed that scores best on the tuning pool (never the held-out one)
     as the shipped `policy=pretrained` for `task`, with its model card; or seed `seed`, with
-    `why` (how it was chosen) on the card."""
+    `why` (how it was chosen) on the card. With `fluoro`, as `policy=pretrained_fluoro`: the
+    runs under ROOT must read only what a C-arm suite measures."""
     from cathsim_dmc.agents.pretrained import export_actor
+    from cathsim_dmc.agents.trained import PRETRAINED, PRETRAINED_FLUORO, PRETRAINED_KINDS
+    from cathsim_dmc.tasks.presets import C_ARM_OBSERVABLES, OBSERVATION_PRESETS
+
+    kind = PRETRAINED_FLUORO if fluoro else PRETRAINED
 
     scores = root / "scores" / task
     seeds = sorted(scores.glob("navigator_seed*_best"))
@@ -621,9 +630,13 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None)
     run = root / "runs" / task / run_name
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    anatomies = (HELDOUT_NAME, NOISY_NAME, TUNING_NAME, *ANATOMIES)
+    views = (AP_NAME, FLUORO_TRACKING_NAME) if fluoro else ()
+    anatomies = (HELDOUT_NAME, *views, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {
-        HELDOUT_NAME: f"held out: pool {HELDOUT['pool_seed']}, {HELDOUT['pool_size']} arches",
+        AP_NAME: "held out, in the AP view",
+        FLUORO_TRACKING_NAME: "held out, the wire found in each fluoroscopic frame",
+        HELDOUT_NAME: f"held out: pool {HELDOUT['pool_seed']}, {HELDOUT['pool_size']} arches"
+        + (", the C-arm's view drawn per episode" if fluoro else ""),
         NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
         f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
         TUNING_NAME: f"tuning: pool {TUNING['pool_seed']}, {TUNING['pool_size']} arches",
@@ -640,6 +653,10 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None)
 
     config = OmegaConf.load(run / "config.yaml")
     obs = config.obs.name
+    beyond_c_arm = sorted(OBSERVATION_PRESETS[obs].enabled - C_ARM_OBSERVABLES)
+    if fluoro and beyond_c_arm:
+        raise UsageError(f"--fluoro: {run} reads obs={obs}, which a C-arm does not give ({', '.join(beyond_c_arm)})")
+    stem = f"{PRETRAINED_KINDS[kind]}_{task}"
     command = f"cathsim-train +experiment=navigator task={task} {run_name.replace('seed', 'seed=')}"
     if obs != recipe_obs():  # trained before the recipe's preset changed: its own
         command += f" obs={obs}"
@@ -683,13 +700,30 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None)
         width=96,
         subsequent_indent="  ",
     )
-    card = f"""# Pretrained navigator: {task.upper()}
+    if fluoro:
+        title = f"Pretrained navigator from the fluoroscope: {task.upper()}"
+        load = f"load_pretrained('{task}', kind='{kind}')"
+        needs = (
+            "- It needs the wire tracked in the image plane (projected from the simulator's wire, or found in\n"
+            "  each fluoroscopic frame with `obs.tracking_source=fluoro_image`), a roadmap registered to the\n"
+            "  C-arm and the C-arm's angles. The table gives its score in the AP view, with the wire found in\n"
+            "  the frame, and with registration noise where scored."
+        )
+    else:
+        title = f"Pretrained navigator: {task.upper()}"
+        load = f"load_pretrained('{task}')"
+        needs = (
+            "- It needs the roadmap: a centerline from the access to the target with its lumen radius, and the\n"
+            "  tip tracked in 3-D. It was trained without tracking or registration noise; the table gives its\n"
+            "  score with both."
+        )
+    card = f"""# {title}
 
 The actor of a SAC agent that steers the angled guidewire from the descending aorta into the
 {task.upper()} of aortic arches it has never seen (docs/training.md#unseen-anatomy).
 
-    cathsim-eval policy=pretrained task={task} aorta=type3        # any shipped name or asset folder
-    python -c "from cathsim_dmc.agents.trained import load_pretrained; policy = load_pretrained('{task}')"
+    cathsim-eval policy={kind} task={task} aorta=type3        # any shipped name or asset folder
+    python -c "from cathsim_dmc.agents.trained import load_pretrained; policy = {load}"
 
 {preset}
 - **Actions**: {actions}
@@ -700,7 +734,7 @@ The actor of a SAC agent that steers the angled guidewire from the descending ao
   types I-III, branching variants, origins, take-off and tortuosity as published morphometry
   reports; docs/anatomy.md), 200 scripted-expert demonstrations, 4 DAgger rounds of 50
   episodes labelled by the expert, then SAC with the cloning term.
-- **Files**: navigator_{task}.pt (the actor's weights), navigator_{task}.json (its shapes and options).
+- **Files**: {stem}.pt (the actor's weights), {stem}.json (its shapes and options).
 
 ## Results
 
@@ -712,15 +746,13 @@ Episode i seeded 10,000 + i; `python scripts/generalisation.py evaluate --task {
 
 ## Known limits
 
-- It needs the roadmap: a centerline from the access to the target with its lumen radius, and the
-  tip tracked in 3-D. It was trained without tracking or registration noise; the table gives its
-  score with both.
+{needs}
 {wide_branch}{bovine}
 - It was trained and scored in this simulator only (its wire, wall contact and anatomy
   generator); nothing here is validated on a phantom or a patient.
 """
     trained = {"command": command, "commit": commit, "best_step": best["step"]}
-    weights = export_actor(run / "checkpoints" / "best.zip", task, card, trained=trained)
+    weights = export_actor(run / "checkpoints" / "best.zip", task, card, trained=trained, kind=kind)
     print(f"shipped {run} as {weights}")
     return weights
 
@@ -771,6 +803,7 @@ def main(argv=None) -> int:
     shp.add_argument("--task", choices=TARGETS, default="bca")
     shp.add_argument("--seed", type=int, help="ship this seed instead of the tuning pool's best (needs --why)")
     shp.add_argument("--why", help="with --seed: how the seed was chosen, written on the model card")
+    shp.add_argument("--fluoro", action="store_true", help="as policy=pretrained_fluoro (runs of a C-arm preset)")
     crv = sub.add_parser("curves", help="the navigators' learning curves (median and spread over seeds)")
     crv.add_argument("--out", type=Path, default=Path("navigator_curves.png"))
     args = parser.parse_args(argv)
@@ -795,7 +828,7 @@ def main(argv=None) -> int:
         if args.command == "ship":
             if (args.seed is None) != (args.why is None):
                 raise UsageError("ship: give --seed and --why together, or neither (the tuning pool's best)")
-            ship(args.root, args.task, args.seed, args.why)
+            ship(args.root, args.task, args.seed, args.why, args.fluoro)
             return 0
     except UsageError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -48,6 +48,9 @@ IMAGE_PLANE_OBSERVABLES = frozenset(
         "target_depth_time_2d",
     )
 )
+# What a single-plane C-arm suite measures: the image and what is found or drawn in it, the
+# C-arm's reported angles and the robot's encoders (policy=pretrained_fluoro reads only these).
+C_ARM_OBSERVABLES = IMAGE_PLANE_OBSERVABLES | {"pixels", "roadmap_overlay", "carm_view", "robot_state", "catheter_rate"}
 MAX_VIEW_DEG = 45.0  # the largest LAO/RAO and cranial/caudal angle a per-episode view may draw
 
 

@@ -191,6 +191,24 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, repo_root):
     assert not any(tmp_path.iterdir())  # nothing was run
 
 
+def test_ship_fluoro_refuses_a_run_that_reads_more_than_a_c_arm_shows(tmp_path, repo_root):
+    run = tmp_path / "runs" / "lcca" / "seed0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "best.json").write_text(json.dumps({"step": 10, "success_rate": 0.5}))
+    (run / "config.yaml").write_text("obs:\n  name: roadmap_memory_carriage\n")
+    shipped = sorted((repo_root / "assets" / "policies").iterdir())
+    stamps = [p.stat().st_mtime_ns for p in shipped]
+    result = _script(
+        repo_root, "--root", str(tmp_path), "ship", "--task", "lcca", "--seed", "0", "--why", "x", "--fluoro"
+    )
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "reads obs=roadmap_memory_carriage, which a C-arm does not give" in lines[0]
+    assert "catheter_called" in lines[0] and "roadmap," in lines[0]  # names what the C-arm lacks
+    assert sorted((repo_root / "assets" / "policies").iterdir()) == shipped
+    assert [p.stat().st_mtime_ns for p in shipped] == stamps  # nothing exported
+
+
 def test_the_variant_of_an_arch_is_bovine_then_close_ostia_then_separate(repo_root):
     script = load_script(repo_root / "scripts" / "generalisation.py")
     apart = {"bovine": False, "bca_lcca_gap_m": 0.004, "lcca_lsa_gap_m": 0.006}

@@ -115,8 +115,8 @@ def recorded_env_options(name: str, task: str | None = None) -> dict | None:
     navigator's metadata for `task`), read without loading it; None for a built-in policy."""
     if name in BUILTIN_POLICIES:
         return None
-    if name == PRETRAINED and not Path(name).exists():
-        meta = policy_files(task)[1] if task else None
+    if name in PRETRAINED_KINDS and not Path(name).exists():
+        meta = policy_files(task, kind=name)[1] if task else None
         if meta is None or not meta.is_file():
             return None  # no navigator for the task: load_pretrained says so
         return json.loads(meta.read_text()).get("env_options") or {}
@@ -174,19 +174,27 @@ def load_checkpoint_policy(path) -> CheckpointPolicy:
 
 # -- the shipped navigators (cathsim_dmc.agents.pretrained writes them) ----------------------
 PRETRAINED = "pretrained"  # the policy name the tools accept (policy=pretrained)
+PRETRAINED_FLUORO = "pretrained_fluoro"  # the navigator that reads only what a C-arm shows
+# policy= name -> the stem of its files in assets/policies/: <stem>_<target>.pt, .json, .md
+PRETRAINED_KINDS = {PRETRAINED: "navigator", PRETRAINED_FLUORO: "navigator_fluoro"}
 POLICY_FOLDER = "policies"
 
 
-def policy_files(target: str, folder: Path | None = None) -> tuple[Path, Path, Path]:
-    """(weights .pt, metadata .json, model card .md) of the shipped navigator for `target`."""
+def policy_files(target: str, folder: Path | None = None, kind: str = PRETRAINED) -> tuple[Path, Path, Path]:
+    """(weights .pt, metadata .json, model card .md) of the shipped navigator of `kind` (a
+    key of PRETRAINED_KINDS) for `target`."""
     folder = Path(folder) if folder is not None else assets_root() / POLICY_FOLDER
-    stem = folder / f"navigator_{target}"
+    stem = folder / f"{PRETRAINED_KINDS[kind]}_{target}"
     return stem.with_suffix(".pt"), stem.with_suffix(".json"), stem.with_suffix(".md")
 
 
-def shipped_targets(folder: Path | None = None) -> tuple:
+def shipped_targets(folder: Path | None = None, kind: str = PRETRAINED) -> tuple:
+    """The targets with a shipped navigator of `kind`."""
     folder = Path(folder) if folder is not None else assets_root() / POLICY_FOLDER
-    return tuple(sorted(p.stem.removeprefix("navigator_") for p in folder.glob("navigator_*.pt")))
+    prefix = f"{PRETRAINED_KINDS[kind]}_"
+    # navigator_fluoro_lcca.pt also starts with "navigator_": a target is one word
+    names = (p.stem.removeprefix(prefix) for p in folder.glob(f"{prefix}*.pt"))
+    return tuple(sorted(name for name in names if "_" not in name))
 
 
 def _spaces(meta: dict):
@@ -235,12 +243,14 @@ class PretrainedActor:
         return self.policy.predict(observation, deterministic=deterministic)
 
 
-def load_pretrained(target: str, folder: Path | None = None):
-    """The shipped navigator for `target` as a `CheckpointPolicy` (ValueError naming the
-    targets that have one)."""
-    weights, meta_path, _ = policy_files(target, folder)
+def load_pretrained(target: str, folder: Path | None = None, kind: str = PRETRAINED):
+    """The shipped navigator of `kind` (policy=pretrained, the 3-D tracked roadmap's, or
+    policy=pretrained_fluoro, the C-arm's) for `target` as a `CheckpointPolicy` (ValueError
+    naming the targets that have one)."""
+    weights, meta_path, _ = policy_files(target, folder, kind)
     if not weights.is_file():
-        raise ValueError(f"no pretrained navigator for task={target!r}; shipped: {list(shipped_targets(folder))}")
+        shipped = list(shipped_targets(folder, kind))
+        raise ValueError(f"no {kind} navigator for task={target!r}; shipped: {shipped}")
     meta = json.loads(meta_path.read_text())
     return CheckpointPolicy(
         PretrainedActor(weights, meta), meta["obs"], meta.get("image_options"), meta.get("env_options"), path=weights
@@ -253,13 +263,13 @@ def make_policy(name: str, seed: int = 0, task: str | None = None):
     the path of its checkpoint or run folder."""
     if name in BUILTIN_POLICIES:
         return make_builtin_policy(name, seed=seed)
-    if name == PRETRAINED and not Path(name).exists():
+    if name in PRETRAINED_KINDS and not Path(name).exists():
         if task is None:
-            raise ValueError("policy=pretrained needs the task (bca or lcca) it navigates to")
-        return load_pretrained(task)
+            raise ValueError(f"policy={name} needs the task (bca or lcca) it navigates to")
+        return load_pretrained(task, kind=name)
     if Path(name).exists():
         return load_checkpoint_policy(name)
     raise ValueError(
-        f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, "
-        f"{PRETRAINED!r}, nor a checkpoint path"
+        f"policy={name!r} is neither a built-in policy {sorted(BUILTIN_POLICIES)}, one of "
+        f"{sorted(PRETRAINED_KINDS)}, nor a checkpoint path"
     )

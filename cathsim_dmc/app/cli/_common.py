@@ -109,10 +109,10 @@ def policy_scenario(argv: Sequence[str], verb: str) -> list:
 
 def check_policy(value: str) -> None:
     """ValueError unless `policy=` is a built-in policy, the shipped navigator or an existing path."""
-    from cathsim_dmc.agents.trained import PRETRAINED
+    from cathsim_dmc.agents.trained import PRETRAINED_KINDS
     from cathsim_dmc.control.policies import BUILTIN_POLICIES
 
-    valid = sorted([*BUILTIN_POLICIES, PRETRAINED])
+    valid = sorted([*BUILTIN_POLICIES, *PRETRAINED_KINDS])
     if value not in valid and not Path(value).exists():
         raise ValueError(f"policy={value!r} is neither one of {valid} nor an existing checkpoint path")
 
