@@ -575,6 +575,21 @@ def _summary(folder: Path) -> str:
     )
 
 
+VIEW_BINS_DEG = ((-45, -30), (-30, -15), (-15, 15), (15, 30), (30, 45))
+
+
+def _success_by_view(metrics: dict | None) -> str:
+    """'reached/episodes' per bin of the episodes' drawn LAO angle ('' without drawn views)."""
+    episodes = (metrics or {}).get("episodes", [])
+    if not episodes or "carm_view_deg" not in episodes[0]:
+        return ""
+    cells = []
+    for low, high in VIEW_BINS_DEG:
+        inside = [e for e in episodes if low <= e["carm_view_deg"][0] < high or e["carm_view_deg"][0] == high == 45]
+        cells.append(f"{low:+d} to {high:+d}: {sum(bool(e['success']) for e in inside)}/{len(inside)}")
+    return "; ".join(cells)
+
+
 WIDE_BRANCH_LIMIT = """- In the wide BCA (12.5 mm in the shipped arches) the tip can come to rest on the wall 4-8.5 mm
   from the target, outside the 4 mm zone. The policy strokes the wire past the target and back to
   get it off the wall, as the scripted expert does, timed by the depth clock; in the failures
@@ -646,6 +661,9 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
         for anatomy in anatomies
         if _metrics(chosen / anatomy)
     )
+    by_view = _success_by_view(_metrics(chosen / HELDOUT_NAME))
+    if by_view:
+        rows += f"\n\nHeld out, reached by the view drawn (LAO positive, RAO negative, degrees): {by_view}."
     missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
     if missing:
         rows += f"\n\nNot scored yet: {', '.join(missing)}."
@@ -660,6 +678,9 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
     command = f"cathsim-train +experiment=navigator task={task} {run_name.replace('seed', 'seed=')}"
     if obs != recipe_obs():  # trained before the recipe's preset changed: its own
         command += f" obs={obs}"
+    for key in ("view_deg_range", "cranial_deg_range"):  # the C-arm's views, drawn per episode
+        if config.obs.get(key) is not None:
+            command += f" 'obs.{key}=[{','.join(f'{v:g}' for v in config.obs[key])}]'"
     steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
     budget = int(config.trainer.total_timesteps)
     stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
@@ -695,8 +716,13 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
             if catheter
             else "."
         )
+    views = ""
+    if config.obs.get("view_deg_range") is not None:
+        low, high = config.obs.view_deg_range
+        views = f", on a C-arm view drawn per episode (LAO {high:g} to RAO {-low:g} degrees)"
+    page = "docs/observations.md#fluoro" if fluoro else "docs/observations.md#roadmap"
     preset = textwrap.fill(
-        f"- **Observation preset**: `{obs}` ({what}docs/observations.md#roadmap), trained without noise.",
+        f"- **Observation preset**: `{obs}` ({what}{page}), trained without noise{views}.",
         width=96,
         subsequent_indent="  ",
     )

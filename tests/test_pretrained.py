@@ -1,4 +1,4 @@
-"""The shipped navigators (`policy=pretrained`): they load from the package, act, and
+"""The shipped navigators (`policy=pretrained`, `policy=pretrained_fluoro`): they load from the package, act, and
 come with a model card. Their success is measured in docs/training.md, not here."""
 
 import json
@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cathsim_dmc.agents.trained import load_pretrained, policy_files, shipped_targets
+from cathsim_dmc.agents.trained import PRETRAINED_FLUORO, load_pretrained, policy_files, shipped_targets
 from cathsim_dmc.suite.gym import CathSimEnv
-from cathsim_dmc.tasks.presets import OBSERVATION_PRESETS
+from cathsim_dmc.tasks.presets import C_ARM_OBSERVABLES, OBSERVATION_PRESETS
+
+SHIPPED = [(kind, target) for kind in ("pretrained", PRETRAINED_FLUORO) for target in shipped_targets(kind=kind)]
 
 
 def test_both_targets_ship_a_small_actor_with_a_card_naming_its_observations():
@@ -26,9 +28,21 @@ def test_both_targets_ship_a_small_actor_with_a_card_naming_its_observations():
         assert "## Results" in card and "## Known limits" in card
 
 
-@pytest.mark.parametrize("target", ["bca", "lcca"])
-def test_a_shipped_navigator_loads_and_acts_deterministically(target):
-    policy = load_pretrained(target)
+def test_the_fluoroscope_navigator_ships_a_small_actor_reading_only_what_a_c_arm_shows():
+    assert "lcca" in shipped_targets(kind=PRETRAINED_FLUORO)
+    for target in shipped_targets(kind=PRETRAINED_FLUORO):
+        weights, meta_path, card_path = policy_files(target, kind=PRETRAINED_FLUORO)
+        assert weights.name == f"navigator_fluoro_{target}.pt" and weights.stat().st_size < 5e6
+        meta = json.loads(meta_path.read_text())
+        assert meta["target"] == target and OBSERVATION_PRESETS[meta["obs"]].enabled <= C_ARM_OBSERVABLES
+        card = card_path.read_text()
+        assert f"`{meta['obs']}`" in card and f"policy={PRETRAINED_FLUORO} task={target}" in card
+        assert "## Results" in card and "AP view" in card
+
+
+@pytest.mark.parametrize(("kind", "target"), SHIPPED)
+def test_a_shipped_navigator_loads_and_acts_deterministically(kind, target):
+    policy = load_pretrained(target, kind=kind)
     env = CathSimEnv(task=target, aorta="type2", obs=policy.obs_preset, **policy.image_options, **policy.env_options)
     try:
         obs, _ = env.reset(seed=0)
@@ -41,17 +55,22 @@ def test_a_shipped_navigator_loads_and_acts_deterministically(target):
         env.close()
 
 
-def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, repo_root):
+@pytest.mark.parametrize(
+    ("policy", "options"),
+    [("pretrained", []), (PRETRAINED_FLUORO, ["obs.view_deg_range=[30,30]", "task.max_steps=30"])],
+)
+def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, repo_root, policy, options):
     script = Path(sys.executable).with_name("cathsim-eval")
     proc = subprocess.run(
         [
             str(script),
-            "policy=pretrained",
+            f"policy={policy}",
             "task=lcca",
             f"aorta={repo_root / 'assets' / 'type3'}",
             "episodes=1",
             "video=false",
             f"hydra.run.dir={tmp_path}",
+            *options,
         ],
         capture_output=True,
         text=True,
@@ -60,7 +79,9 @@ def test_cathsim_eval_runs_the_pretrained_policy_on_an_asset_folder(tmp_path, re
     )
     assert proc.returncode == 0, proc.stderr
     report = json.loads((tmp_path / "metrics.json").read_text())
-    assert report["policy"] == "pretrained" and report["task"] == "lcca" and len(report["episodes"]) == 1
+    assert report["policy"] == policy and report["task"] == "lcca" and len(report["episodes"]) == 1
+    if options:  # the view chosen with the usual obs. options, not the training's range
+        assert report["episodes"][0]["carm_view_deg"] == [30.0, 0.0]
 
 
 def test_a_target_without_a_shipped_navigator_is_refused_in_one_line(tmp_path):
