@@ -127,15 +127,17 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                 noisy = script.anatomy_of(job) == "heldout_noise"
                 assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
                 # a trained agent brings its own observations, named where their noise is set
-                assert ("obs" in job) == (job["policy"] == "expert" or noisy)
+                own = script.anatomy_of(job) in ("heldout_noise", "heldout_ap", "heldout_fluoro_image")
+                assert ("obs" in job) == (job["policy"] == "expert" or own)
                 # the expert drives the catheter the navigator recipe trains with
                 assert cfg.task.catheter == ("angled_5f" if job["policy"] == "expert" else None)
     # The expert has no roadmap to be noisy; the shipped navigator has. Neither sees the C-arm.
     c_arm = ("heldout_ap", "heldout_fluoro_image")
     expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise", *c_arm)}
     expected |= {("pretrained", a) for a in anatomies if a not in c_arm}
+    expected |= {("pretrained_fluoro", a) for a in anatomies}  # it sees the C-arm and tracks in the image
     assert scored == expected
-    assert len(jobs) == 5  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
+    assert len(jobs) == 8  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
     corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
     assert script.anatomy_of(corpus) == "corpus_pinched"
     assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "tuning"}) == "tuning"
