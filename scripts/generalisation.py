@@ -585,7 +585,8 @@ def _success_by_view(metrics: dict | None) -> str:
         return ""
     cells = []
     for low, high in VIEW_BINS_DEG:
-        inside = [e for e in episodes if low <= e["carm_view_deg"][0] < high or e["carm_view_deg"][0] == high == 45]
+        last = high == VIEW_BINS_DEG[-1][1]  # the widest view belongs to the last bin
+        inside = [e for e in episodes if low <= (lao := e["carm_view_deg"][0]) < high or (last and lao == high)]
         cells.append(f"{low:+d} to {high:+d}: {sum(bool(e['success']) for e in inside)}/{len(inside)}")
     return "; ".join(cells)
 
@@ -716,13 +717,13 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
             if catheter
             else "."
         )
-    views = ""
+    drawn_views = ""
     if config.obs.get("view_deg_range") is not None:
         low, high = config.obs.view_deg_range
-        views = f", on a C-arm view drawn per episode (LAO {high:g} to RAO {-low:g} degrees)"
+        drawn_views = f", on a C-arm view drawn per episode (LAO {high:g} to RAO {-low:g} degrees)"
     page = "docs/observations.md#fluoro" if fluoro else "docs/observations.md#roadmap"
     preset = textwrap.fill(
-        f"- **Observation preset**: `{obs}` ({what}{page}), trained without noise{views}.",
+        f"- **Observation preset**: `{obs}` ({what}{page}), trained without noise{drawn_views}.",
         width=96,
         subsequent_indent="  ",
     )
