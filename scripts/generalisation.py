@@ -20,8 +20,9 @@ one cut short resumes from its last checkpoint (`cathsim-train -m resume=<run>,.
   the scripted expert; the type I specialist; the shipped navigator (`policy=pretrained`);
 - anatomies: the held-out pool (`pool_seed=heldout`: 100 arches of aorta=random's
   "morphometry" distribution, each visited once), the same pool with the roadmap's
-  tracking and registration noise (navigators only), the same pool in the AP view
-  (`heldout_ap`: navigators that see the C-arm, trained on views drawn per episode), the
+  tracking and registration noise (navigators only), the same pool in the AP view and in
+  LAO 40, the arch's working view (`heldout_ap`, `heldout_lao40`: navigators that see the
+  C-arm, trained on views drawn per episode), the
   same pool with the wire found in the fluoroscopic frame (`heldout_fluoro_image`:
   navigators of the image tracker's observations), the nine shipped aortas and the
   segmentation corpus of the tests (cathsim_dmc/anatomy/corpus.py), imported with
@@ -87,6 +88,12 @@ NOISY_NAME = "heldout_noise"
 # drawn per episode, scored on them under HELDOUT_NAME).
 AP_VIEW = dict(lao_deg=0, view_deg_range=None, cranial_deg_range=None)
 AP_NAME = "heldout_ap"
+# ... and in LAO 40, the arch's working view: the mean obliquity of the arch on CTA
+# (anatomy/parameters.py ARCH_OBLIQUITY_DEG, 39.7 +- 13.8 degrees), the angle that shows the
+# arch open, its BCA-LSA ostia line square to the view, as a clinic sets the C-arm for it.
+WORKING_VIEW = dict(lao_deg=40, view_deg_range=None, cranial_deg_range=None)
+WORKING_NAME = "heldout_lao40"
+FIXED_VIEWS = {AP_NAME: AP_VIEW, WORKING_NAME: WORKING_VIEW}
 # The held-out pool again with the wire of the image-plane observations found in each step's
 # fluoroscopic frame instead of projected (obs.tracking_source=fluoro_image), for a policy
 # that reads them.
@@ -294,7 +301,10 @@ def anatomy_overrides(root: Path, episodes: int, shipped_episodes: int, only_ana
         HELDOUT_NAME: ([*_pool(HELDOUT), f"episodes={episodes}"], None),
         TUNING_NAME: ([*_pool(TUNING), f"episodes={TUNING['pool_size']}"], None),
         NOISY_NAME: ([*_pool(HELDOUT), *[f"obs.{k}={v}" for k, v in NOISE.items()], f"episodes={episodes}"], None),
-        AP_NAME: ([*_pool(HELDOUT), *_obs_overrides(AP_VIEW), f"episodes={episodes}"], None),
+        **{
+            name: ([*_pool(HELDOUT), *_obs_overrides(view), f"episodes={episodes}"], None)
+            for name, view in FIXED_VIEWS.items()
+        },
         FLUORO_TRACKING_NAME: ([*_pool(HELDOUT), *_obs_overrides(FLUORO_TRACKING), f"episodes={episodes}"], None),
     }
     anatomies.update({name: ([f"aorta={name}", f"episodes={shipped_episodes}"], "aorta") for name in SHIPPED})
@@ -314,7 +324,7 @@ def anatomy_of(overrides: dict) -> str:
         if str(overrides["aorta.params.pool_seed"]) == str(TUNING["pool_seed"]):
             return TUNING_NAME
         if "obs.view_deg_range" in overrides:
-            return AP_NAME
+            return next(n for n, v in FIXED_VIEWS.items() if float(overrides["obs.lao_deg"]) == v["lao_deg"])
         if "obs.tracking_source" in overrides:
             return FLUORO_TRACKING_NAME
         return NOISY_NAME if "obs.tracking_noise_m" in overrides else HELDOUT_NAME
@@ -356,7 +366,7 @@ def evaluation_jobs(
                 checkpoint and OBSERVATION_PRESETS[policy.obs_preset].enabled & tracked_observables
             ):
                 continue  # the noise is the tracking's and the roadmap's: the expert and the specialist do not read it
-            if anatomy == AP_NAME and not (
+            if anatomy in FIXED_VIEWS and not (
                 checkpoint and "carm_view" in OBSERVATION_PRESETS[policy.obs_preset].enabled
             ):
                 continue  # only a policy that sees the C-arm has a view to fix
@@ -378,7 +388,7 @@ def evaluation_jobs(
                 # expert's do not change what it does.
                 *(
                     [f"obs={policy.obs_preset}"]
-                    if anatomy in (NOISY_NAME, AP_NAME, FLUORO_TRACKING_NAME)
+                    if anatomy in (NOISY_NAME, *FIXED_VIEWS, FLUORO_TRACKING_NAME)
                     else []
                     if checkpoint
                     else ["obs=roadmap"]
@@ -499,8 +509,8 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
             "",
             "| policy | seeds | success % | safe success % | SPL % | force N | episode length | type I | type II "
             "| type III | separate ostia | close ostia | bovine | success % with noise | success % AP view "
-            "| success % wire found in the fluoro frame |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| success % LAO 40 view | success % wire found in the fluoro frame |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for label, folders in groups.items():
             reports = [m for m in (_metrics(f / HELDOUT_NAME) for f in folders) if m]
@@ -530,7 +540,7 @@ def report(root: Path, out: Path | None, arch_types: dict | None = None, variant
                 + " | "
                 + " | ".join(
                     _cell([mean(m, "success_pct") for m in (_metrics(f / name) for f in folders) if m])
-                    for name in (NOISY_NAME, AP_NAME, FLUORO_TRACKING_NAME)
+                    for name in (NOISY_NAME, *FIXED_VIEWS, FLUORO_TRACKING_NAME)
                 )
                 + " |"
             )
@@ -646,10 +656,11 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
     run = root / "runs" / task / run_name
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    views = (AP_NAME, FLUORO_TRACKING_NAME) if fluoro else ()
+    views = (*FIXED_VIEWS, FLUORO_TRACKING_NAME) if fluoro else ()
     anatomies = (HELDOUT_NAME, *views, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {
         AP_NAME: "held out, in the AP view",
+        WORKING_NAME: "held out, in LAO 40 (the arch's working view)",
         FLUORO_TRACKING_NAME: "held out, the wire found in each fluoroscopic frame",
         HELDOUT_NAME: f"held out: pool {HELDOUT['pool_seed']}, {HELDOUT['pool_size']} arches"
         + (", the C-arm's view drawn per episode" if fluoro else ""),

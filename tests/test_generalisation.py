@@ -36,6 +36,7 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_v
     _write(scores / "navigator_seed0_last" / "heldout", [False, False, False, False], aortas)
     _write(scores / "navigator_seed0_best" / "heldout_noise", [True, False, True, False], aortas)
     _write(scores / "navigator_seed1_best" / "heldout_ap", [True, True, True, True], aortas)
+    _write(scores / "navigator_seed2_best" / "heldout_lao40", [True, True, True, False], aortas)
     _write(scores / "expert" / "heldout", [True, True, True, True], aortas)
     _write(scores / "expert" / "type2", [True, False], ["type2", "type2"])
     variants = {"a": "separate", "b": "close ostia", "c": "bovine", "d": "bovine"}
@@ -49,7 +50,8 @@ def test_the_report_gives_the_median_of_the_seeds_and_success_by_arch_type_and_v
     all_reached, half = "100 (100, 100, 100)", "50 (50, 0, 100)"
     assert best[7:10] == [all_reached, all_reached, half]  # by arch type
     assert best[10:13] == [all_reached, all_reached, half]  # by variant
-    assert best[13:] == ["50", "100", "- |"]  # with noise: seed 0; in the AP view: seed 1; none from the frame
+    # with noise: seed 0; in the AP view: seed 1; in LAO 40: seed 2; none from the frame
+    assert best[13:] == ["50", "100", "75", "- |"]
     assert rows["navigator, last.zip"].split(" | ")[2] == "0"
     assert rows["expert"].split(" | ")[3] == "-"  # a report from before safe success
     # The shipped-aorta table: a row per anatomy, a column only for the policies scored there
@@ -109,7 +111,7 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
 
     script = load_script(repo_root / "scripts" / "generalisation.py")
     _write(tmp_path / "scores" / "bca" / "expert" / "type2", [True], ["type2"])  # scored already
-    anatomies = ["heldout", "heldout_noise", "heldout_ap", "heldout_fluoro_image", "type1", "type2"]
+    anatomies = ["heldout", "heldout_noise", "heldout_ap", "heldout_lao40", "heldout_fluoro_image", "type1", "type2"]
     jobs = script.evaluation_jobs(tmp_path, "bca", 7, 3, None, False, anatomies)
     scored = set()
     with initialize_config_dir(config_dir=str(conf_root()), version_base=None):
@@ -126,23 +128,28 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                     assert cfg.aorta.params.distribution == "morphometry"
                 noisy = script.anatomy_of(job) == "heldout_noise"
                 assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
+                if script.anatomy_of(job) in ("heldout_ap", "heldout_lao40"):  # one fixed view
+                    assert cfg.obs.view_deg_range is None and cfg.obs.cranial_deg_range is None
+                    assert cfg.obs.lao_deg == (40 if job["obs.lao_deg"] == "40" else 0)
                 # a trained agent brings its own observations, named where their noise is set
-                own = script.anatomy_of(job) in ("heldout_noise", "heldout_ap", "heldout_fluoro_image")
+                own = script.anatomy_of(job) in ("heldout_noise", "heldout_ap", "heldout_lao40", "heldout_fluoro_image")
                 assert ("obs" in job) == (job["policy"] == "expert" or own)
                 # the expert drives the catheter the navigator recipe trains with
                 assert cfg.task.catheter == ("angled_5f" if job["policy"] == "expert" else None)
     # The expert has no roadmap to be noisy; the shipped navigator has. Neither sees the C-arm.
-    c_arm = ("heldout_ap", "heldout_fluoro_image")
+    c_arm = ("heldout_ap", "heldout_lao40", "heldout_fluoro_image")
     expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise", *c_arm)}
     expected |= {("pretrained", a) for a in anatomies if a not in c_arm}
     expected |= {("pretrained_fluoro", a) for a in anatomies}  # it sees the C-arm and tracks in the image
     assert scored == expected
-    assert len(jobs) == 8  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
+    assert len(jobs) == 9  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
     corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
     assert script.anatomy_of(corpus) == "corpus_pinched"
     assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "tuning"}) == "tuning"
     ap = dict(o.split("=", 1) for o in script.anatomy_overrides(tmp_path, 7, 3, ["heldout_ap"])["heldout_ap"][0])
     assert script.anatomy_of(ap) == "heldout_ap" and ap["obs.view_deg_range"] == "null"
+    lao = dict(o.split("=", 1) for o in script.anatomy_overrides(tmp_path, 7, 3, ["heldout_lao40"])["heldout_lao40"][0])
+    assert script.anatomy_of(lao) == "heldout_lao40" and lao["obs.lao_deg"] == "40"
     frame = script.anatomy_overrides(tmp_path, 7, 3, ["heldout_fluoro_image"])["heldout_fluoro_image"][0]
     frame = dict(o.split("=", 1) for o in frame)
     assert script.anatomy_of(frame) == "heldout_fluoro_image" and frame["obs.tracking_source"] == "fluoro_image"
