@@ -128,9 +128,10 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
                     assert cfg.aorta.params.distribution == "morphometry"
                 noisy = script.anatomy_of(job) == "heldout_noise"
                 assert cfg.obs.get("tracking_noise_m", 0.0) == (0.001 if noisy else 0.0)
-                if script.anatomy_of(job) in ("heldout_ap", "heldout_lao40"):  # one fixed view
+                fixed_view_deg = {"heldout_ap": 0, "heldout_lao40": 40}.get(script.anatomy_of(job))
+                if fixed_view_deg is not None:  # one fixed view, nothing drawn
                     assert cfg.obs.view_deg_range is None and cfg.obs.cranial_deg_range is None
-                    assert cfg.obs.lao_deg == (40 if job["obs.lao_deg"] == "40" else 0)
+                    assert cfg.obs.lao_deg == fixed_view_deg
                 # a trained agent brings its own observations, named where their noise is set
                 own = script.anatomy_of(job) in ("heldout_noise", "heldout_ap", "heldout_lao40", "heldout_fluoro_image")
                 assert ("obs" in job) == (job["policy"] == "expert" or own)
