@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The default test suite, one pytest worker per core (at most 4: each worker holds its own
-# MuJoCo, dm_control and torch). 2 cores: 7.1 min of pytest on a fresh clone (2026-12-01, docs/install.md).
+# MuJoCo, dm_control and torch). 2 cores: about 15 min of pytest on a fresh clone (docs/install.md).
 # Slow tests: scripts/test.sh -m slow. One process: scripts/test.sh -n 0
 set -euo pipefail
 cd "$(dirname "$0")/.."
