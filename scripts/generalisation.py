@@ -371,9 +371,13 @@ def evaluation_jobs(
             ):
                 continue  # only a policy that sees the C-arm has a view to fix
             if anatomy == FLUORO_TRACKING_NAME and not (
-                checkpoint and OBSERVATION_PRESETS[policy.obs_preset].enabled & IMAGE_PLANE_OBSERVABLES
+                checkpoint
+                and OBSERVATION_PRESETS[policy.obs_preset].enabled & IMAGE_PLANE_OBSERVABLES
+                and policy.image_options.get("tracking_source") != FLUORO_TRACKING["tracking_source"]
             ):
-                continue  # only the image tracker's observables have a wire to find in the frame
+                # only the image tracker's observables have a wire to find in the frame; a policy
+                # trained on the found wire reads it on every anatomy, the held-out pool included
+                continue
             if sweeps.finished_report(root / "scores" / task / policy_name / anatomy / "metrics.json"):
                 continue
             point = {"policy": source}
@@ -656,14 +660,19 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
     run = root / "runs" / task / run_name
     commit = (run / "commit.txt").read_text().strip() if (run / "commit.txt").is_file() else "unknown"
     best = json.loads((run / "checkpoints" / "best.json").read_text())
-    views = (*FIXED_VIEWS, FLUORO_TRACKING_NAME) if fluoro else ()
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.load(run / "config.yaml")
+    found_wire = config.obs.get("tracking_source") == FLUORO_TRACKING["tracking_source"]
+    views = (*FIXED_VIEWS, *(() if found_wire else (FLUORO_TRACKING_NAME,))) if fluoro else ()
     anatomies = (HELDOUT_NAME, *views, NOISY_NAME, TUNING_NAME, *ANATOMIES)
     names = {
         AP_NAME: "held out, in the AP view",
         WORKING_NAME: "held out, in LAO 40 (the arch's working view)",
         FLUORO_TRACKING_NAME: "held out, the wire found in each fluoroscopic frame",
         HELDOUT_NAME: f"held out: pool {HELDOUT['pool_seed']}, {HELDOUT['pool_size']} arches"
-        + (", the C-arm's view drawn per episode" if fluoro else ""),
+        + (", the C-arm's view drawn per episode" if fluoro else "")
+        + (", the wire found in each fluoroscopic frame" if found_wire else ""),
         NOISY_NAME: f"held out, with {NOISE['tracking_noise_m'] * 1e3:g} mm tracking and "
         f"{NOISE['registration_error_m'] * 1e3:g} mm registration noise",
         TUNING_NAME: f"tuning: pool {TUNING['pool_seed']}, {TUNING['pool_size']} arches",
@@ -679,9 +688,6 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
     missing = [anatomy for anatomy in anatomies if not _metrics(chosen / anatomy)]
     if missing:
         rows += f"\n\nNot scored yet: {', '.join(missing)}."
-    from omegaconf import OmegaConf
-
-    config = OmegaConf.load(run / "config.yaml")
     obs = config.obs.name
     beyond_c_arm = sorted(OBSERVATION_PRESETS[obs].enabled - C_ARM_OBSERVABLES)
     if fluoro and beyond_c_arm:
@@ -693,6 +699,8 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
     for key in ("view_deg_range", "cranial_deg_range"):  # the C-arm's views, drawn per episode
         if config.obs.get(key) is not None:
             command += f" 'obs.{key}=[{','.join(f'{v:g}' for v in config.obs[key])}]'"
+    if found_wire:
+        command += f" obs.tracking_source={FLUORO_TRACKING['tracking_source']}"
     steps = [json.loads(line)["step"] for line in (run / "evaluations.jsonl").read_text().splitlines()]
     budget = int(config.trainer.total_timesteps)
     stopped = "" if max(steps) >= budget else f" (stopped at step {max(steps):,} of its {budget:,})"
@@ -733,12 +741,23 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
         low, high = config.obs.view_deg_range
         drawn_views = f", on a C-arm view drawn per episode (LAO {high:g} to RAO {-low:g} degrees)"
     page = "docs/observations.md#fluoro" if fluoro else "docs/observations.md#roadmap"
+    found = "on the wire found in each fluoroscopic frame, without registration noise"
+    noise = found if found_wire else "without noise"
     preset = textwrap.fill(
-        f"- **Observation preset**: `{obs}` ({what}{page}), trained without noise{drawn_views}.",
+        f"- **Observation preset**: `{obs}` ({what}{page}), trained {noise}{drawn_views}.",
         width=96,
         subsequent_indent="  ",
     )
-    if fluoro:
+    if fluoro and found_wire:
+        title = f"Pretrained navigator from the fluoroscope: {task.upper()}"
+        load = f"load_pretrained('{task}', kind='{kind}')"
+        needs = (
+            "- It finds the wire in each fluoroscopic frame (cathsim_dmc/sim/wire_finder.py), as it was\n"
+            "  trained; `obs.tracking_source=projection` gives it the wire projected from the simulator\n"
+            "  instead. It needs a roadmap registered to the C-arm and the C-arm's angles. The table gives\n"
+            "  its score in the AP view, in LAO 40, and with registration noise where scored."
+        )
+    elif fluoro:
         title = f"Pretrained navigator from the fluoroscope: {task.upper()}"
         load = f"load_pretrained('{task}', kind='{kind}')"
         needs = (

@@ -107,6 +107,7 @@ def test_train_sweeps_the_runs_to_start_resumes_the_killed_and_skips_the_finishe
 def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path, repo_root):
     from hydra import compose, initialize_config_dir
 
+    from cathsim_dmc.agents.trained import load_pretrained
     from cathsim_dmc.core.shipped import conf_root
 
     script = load_script(repo_root / "scripts" / "generalisation.py")
@@ -141,9 +142,19 @@ def test_evaluate_sweeps_each_anatomy_over_the_policies_without_a_score(tmp_path
     c_arm = ("heldout_ap", "heldout_lao40", "heldout_fluoro_image")
     expected = {("expert", a) for a in anatomies if a not in ("type2", "heldout_noise", *c_arm)}
     expected |= {("pretrained", a) for a in anatomies if a not in c_arm}
-    expected |= {("pretrained_fluoro", a) for a in anatomies}  # it sees the C-arm and tracks in the image
+    # It sees the C-arm and tracks in the image; trained on the wire found in the frame, it reads
+    # that everywhere, so the held-out pool with the found wire is the held-out pool itself.
+    found_wire = {
+        task: load_pretrained(task, kind="pretrained_fluoro").image_options.get("tracking_source") == "fluoro_image"
+        for task in ("bca", "lcca")
+    }
+    expected |= {("pretrained_fluoro", a) for a in anatomies if not (found_wire["bca"] and a == "heldout_fluoro_image")}
     assert scored == expected
-    assert len(jobs) == 9  # the shipped aortas are one sweep per policy (the expert's with obs=roadmap)
+    # the shipped aortas: one sweep per policy (the expert's with obs=roadmap)
+    assert len(jobs) == 9 - found_wire["bca"]
+    for task in ("bca", "lcca"):
+        jobs = script.evaluation_jobs(tmp_path, task, 7, 3, ["pretrained_fluoro"], False, ["heldout_fluoro_image"])
+        assert len(jobs) == (0 if found_wire[task] else 1)
     corpus = {"aorta": "folder", "aorta.name": str(tmp_path / "corpus" / "pinched"), "aorta.label": "corpus"}
     assert script.anatomy_of(corpus) == "corpus_pinched"
     assert script.anatomy_of({"aorta": "random", "aorta.params.pool_seed": "tuning"}) == "tuning"
