@@ -741,30 +741,31 @@ def ship(root: Path, task: str, seed: int | None = None, why: str | None = None,
         low, high = config.obs.view_deg_range
         drawn_views = f", on a C-arm view drawn per episode (LAO {high:g} to RAO {-low:g} degrees)"
     page = "docs/observations.md#fluoro" if fluoro else "docs/observations.md#roadmap"
-    found = "on the wire found in each fluoroscopic frame, without registration noise"
-    noise = found if found_wire else "without noise"
+    noise = (
+        "on the wire found in each fluoroscopic frame, without registration noise" if found_wire else "without noise"
+    )
     preset = textwrap.fill(
         f"- **Observation preset**: `{obs}` ({what}{page}), trained {noise}{drawn_views}.",
         width=96,
         subsequent_indent="  ",
     )
-    if fluoro and found_wire:
+    if fluoro:
         title = f"Pretrained navigator from the fluoroscope: {task.upper()}"
         load = f"load_pretrained('{task}', kind='{kind}')"
         needs = (
-            "- It finds the wire in each fluoroscopic frame (cathsim_dmc/sim/wire_finder.py), as it was\n"
-            "  trained; `obs.tracking_source=projection` gives it the wire projected from the simulator\n"
-            "  instead. It needs a roadmap registered to the C-arm and the C-arm's angles. The table gives\n"
-            "  its score in the AP view, in LAO 40, and with registration noise where scored."
-        )
-    elif fluoro:
-        title = f"Pretrained navigator from the fluoroscope: {task.upper()}"
-        load = f"load_pretrained('{task}', kind='{kind}')"
-        needs = (
-            "- It needs the wire tracked in the image plane (projected from the simulator's wire, or found in\n"
-            "  each fluoroscopic frame with `obs.tracking_source=fluoro_image`), a roadmap registered to the\n"
-            "  C-arm and the C-arm's angles. The table gives its score in the AP view, with the wire found in\n"
-            "  the frame, and with registration noise where scored."
+            (
+                "- It finds the wire in each fluoroscopic frame (cathsim_dmc/sim/wire_finder.py), as it was\n"
+                "  trained; `obs.tracking_source=projection` gives it the wire projected from the simulator\n"
+                "  instead. It needs a roadmap registered to the C-arm and the C-arm's angles. The table gives\n"
+                "  its score in the AP view, in LAO 40, and with registration noise where scored."
+            )
+            if found_wire
+            else (
+                "- It needs the wire tracked in the image plane (projected from the simulator's wire, or found in\n"
+                "  each fluoroscopic frame with `obs.tracking_source=fluoro_image`), a roadmap registered to the\n"
+                "  C-arm and the C-arm's angles. The table gives its score in the AP view, with the wire found in\n"
+                "  the frame, and with registration noise where scored."
+            )
         )
     else:
         title = f"Pretrained navigator: {task.upper()}"
